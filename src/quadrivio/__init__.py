@@ -1,0 +1,1 @@
+"""Quadrivio bringup core: scenarios, experiment runner, metrics, analysis (ROS-free)."""

@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# Run the unit tests (pytest, no ROS master) and every rostest (*.test under the
+# packages' test/ folders), one line of progress per rostest. Called by `make test`
+# with env.sh sourced.
+#
+#   tools/run_tests.sh [all|unit|rostest] [rostest name filter]
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+mode=${1:-all}
+filter=${2:-}
+LOGS="$ROOT/.setup/test-logs"
+mkdir -p "$LOGS"
+failed=()
+
+if [ "$mode" = all ] || [ "$mode" = unit ]; then
+  printf '\n[test] unit tests (pytest)\n'
+  if ! python3 -m pytest -q; then
+    failed+=("unit tests")
+  fi
+fi
+
+if [ "$mode" = all ] || [ "$mode" = rostest ]; then
+  mapfile -t tests < <(cd "$ROOT" && ls test/*.test quadrivio_*/test/*.test 2>/dev/null | grep -e "$filter" | sort)
+  printf '\n[test] %d rostests\n' "${#tests[@]}"
+  i=0
+  for t in "${tests[@]}"; do
+    i=$((i + 1))
+    pkg=$(dirname "$(dirname "$t")")
+    [ "$pkg" = . ] && pkg=quadrivio
+    name=$(basename "$t")
+    log="$LOGS/${pkg}__${name%.test}.log"
+    start=$(date +%s)
+    printf '[%2d/%d] %-45s ' "$i" "${#tests[@]}" "$pkg/$name"
+    if rostest "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log"; then
+      printf 'ok     %4ds\n' "$(( $(date +%s) - start ))"
+    else
+      printf 'FAILED %4ds  (log: %s)\n' "$(( $(date +%s) - start ))" "${log#$ROOT/}"
+      grep -E "FAILURE|ERROR|Error|assert|FATAL" "$log" | grep -v "^\s*$" | tail -n 15 | sed 's/^/    /'
+      failed+=("$pkg/$name")
+    fi
+  done
+fi
+
+if [ ${#failed[@]} -gt 0 ]; then
+  printf '\n[test] FAILED: %s\n' "${failed[*]}"
+  exit 1
+fi
+printf '\n[test] all passed\n'
