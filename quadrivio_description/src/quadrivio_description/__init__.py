@@ -1,0 +1,1 @@
+"""Quadrivio vehicle description: parameters (single source of truth), kinematics, URDF."""

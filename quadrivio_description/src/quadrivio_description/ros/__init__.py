@@ -1,0 +1,1 @@
+"""ROS wiring shared by the Quadrivio nodes (parameter reading, start-up errors)."""

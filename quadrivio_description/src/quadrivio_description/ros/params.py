@@ -1,0 +1,61 @@
+"""Reading parameters once, at start-up, into validated dataclasses.
+
+A node calls :func:`node_params` (its private ``~`` namespace) and :func:`vehicle_params`
+(the ``/vehicle`` namespace loaded from ``vehicle.yaml`` by the launch files) before
+creating any publisher. A missing, unknown or out-of-range parameter stops the node
+right there with one ``FATAL`` line naming the key, the value and the allowed range.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any, Dict, NoReturn, Tuple, Type, TypeVar
+
+import rospy
+
+from ..config import ConfigError, from_mapping
+from ..vehicle import VehicleParams, default_vehicle_file, load_vehicle
+
+T = TypeVar("T")
+
+
+def fatal(message: str) -> NoReturn:
+    """Log ``message`` as FATAL and stop the node with exit status 1."""
+    rospy.logfatal(message)
+    sys.stderr.flush()
+    raise SystemExit(1)
+
+
+def private_params() -> Dict[str, Any]:
+    params = rospy.get_param("~", {})
+    return dict(params) if isinstance(params, dict) else {}
+
+
+def node_params(cls: Type[T], data: Dict[str, Any] = None, source: str = "") -> T:
+    """The node's private parameters as ``cls``; stops the node on a bad value."""
+    data = private_params() if data is None else data
+    try:
+        return from_mapping(cls, data, source or rospy.get_name())
+    except ConfigError as exc:
+        fatal(f"bad parameter: {exc}")
+
+
+def split_params(data: Dict[str, Any], cls: Type[Any]) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+    """Split a parameter dict into the keys that are fields of ``cls`` and the rest."""
+    import dataclasses
+
+    names = {f.name for f in dataclasses.fields(cls)}
+    mine = {k: v for k, v in data.items() if k in names}
+    rest = {k: v for k, v in data.items() if k not in names}
+    return mine, rest
+
+
+def vehicle_params() -> VehicleParams:
+    """Vehicle parameters from ``/vehicle`` (or, when absent, the package's vehicle.yaml)."""
+    try:
+        if rospy.has_param("/vehicle"):
+            return from_mapping(VehicleParams, rospy.get_param("/vehicle"), "/vehicle")
+        rospy.loginfo("no /vehicle parameters on the server: loading %s", default_vehicle_file())
+        return load_vehicle()
+    except ConfigError as exc:
+        fatal(f"bad vehicle parameter: {exc}")
