@@ -1,0 +1,1 @@
+"""Quadrivio plc core (ROS-free)."""

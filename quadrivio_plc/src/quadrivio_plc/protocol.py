@@ -1,0 +1,271 @@
+"""Quadrivio PLC wire protocol: one codec for the PLCClient and the emulated PLC.
+
+See ``PROTOCOL.md`` for the full description. A frame (little-endian)::
+
+    offset  size  field
+    0       2     magic  b"QV"
+    2       1     version (1)
+    3       1     message type
+    4       2     sequence number (per sender, wraps at 65536)
+    6       2     payload length N (at most MAX_PAYLOAD)
+    8       N     payload
+    8+N     2     CRC-16/CCITT-FALSE of bytes 0 .. 8+N-1 (poly 0x1021, init 0xFFFF)
+
+:class:`FrameDecoder` is a streaming decoder: it is fed arbitrary chunks of bytes and
+returns the valid frames; anything else (garbage, truncated or oversized frames, bad
+checksums, unknown types, wrong payload sizes) is counted per reason, reported, and
+skipped by resynchronising on the next magic. It never raises on input.
+"""
+
+from __future__ import annotations
+
+import binascii
+import math
+import struct
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple, Union
+
+MAGIC = b"QV"
+VERSION = 1
+HEADER = struct.Struct("<2sBBHH")  # magic, version, type, seq, payload length
+CRC = struct.Struct("<H")
+MAX_PAYLOAD = 128
+DEFAULT_PORT = 5020
+
+# Operating modes (match quadrivio_plc/VehicleState MODE_*)
+MODE_HALT, MODE_SAFE, MODE_MANUAL, MODE_ASSISTED, MODE_AUTO = 0, 1, 2, 3, 4
+MODE_NAMES = {MODE_HALT: "HALT", MODE_SAFE: "SAFE", MODE_MANUAL: "MANUAL", MODE_ASSISTED: "ASSISTED",
+              MODE_AUTO: "AUTO"}
+MODE_BY_NAME = {v: k for k, v in MODE_NAMES.items()}
+
+# Setpoint sources
+SOURCE_MANUAL, SOURCE_AUTO = 1, 2
+SOURCE_NAMES = {SOURCE_MANUAL: "manual", SOURCE_AUTO: "auto"}
+
+# Fault flags (match quadrivio_plc/VehicleState FAULT_*)
+FAULT_WATCHDOG, FAULT_ESTOP, FAULT_SETPOINT_CLAMPED, FAULT_LINK = 1, 2, 4, 8
+
+# Status / reason codes of ACK and REFUSED frames
+OK, BAD_TRANSITION, WRONG_SOURCE, NOT_ACCEPTING, CLAMPED, BUSY, BAD_VALUE = 0, 1, 2, 3, 4, 5, 6
+STATUS_NAMES = {OK: "ok", BAD_TRANSITION: "mode transition not allowed",
+                WRONG_SOURCE: "setpoint source does not match the mode",
+                NOT_ACCEPTING: "mode does not accept setpoints", CLAMPED: "setpoint clamped to the limits",
+                BUSY: "another client is connected", BAD_VALUE: "value is not a finite number"}
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """Client -> PLC, type 0x01: a setpoint from one source."""
+    TYPE = 0x01
+    FMT = struct.Struct("<Bfff")
+    source: int  # SOURCE_*
+    speed: float  # [m/s]
+    handlebar: float  # [rad]
+    brake: float  # [1]
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.source, self.speed, self.handlebar, self.brake)
+
+
+@dataclass(frozen=True)
+class ModeRequest:
+    """Client -> PLC, type 0x02: request an operating mode."""
+    TYPE = 0x02
+    FMT = struct.Struct("<B")
+    mode: int
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.mode)
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """Client -> PLC, type 0x03: keeps the watchdog fed when there is nothing else to send."""
+    TYPE = 0x03
+    FMT = struct.Struct("<")
+
+    def pack(self) -> bytes:
+        return b""
+
+
+@dataclass(frozen=True)
+class State:
+    """PLC -> client, type 0x81: the vehicle state, at the PLC state rate."""
+    TYPE = 0x81
+    FMT = struct.Struct("<dBHHffffff")
+    plc_time: float  # [s]
+    mode: int
+    faults: int
+    ack_seq: int  # sequence number of the last valid frame received from the client
+    wheel_speed: float  # [m/s]
+    handlebar: float  # [rad]
+    throttle: float  # [1]
+    brake: float  # [1]
+    setpoint_speed: float  # [m/s]
+    setpoint_handlebar: float  # [rad]
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.plc_time, self.mode, self.faults, self.ack_seq, self.wheel_speed,
+                             self.handlebar, self.throttle, self.brake, self.setpoint_speed,
+                             self.setpoint_handlebar)
+
+
+@dataclass(frozen=True)
+class Ack:
+    """PLC -> client, type 0x82: immediate answer to every valid client frame."""
+    TYPE = 0x82
+    FMT = struct.Struct("<HBBB")
+    ack_seq: int  # sequence number of the frame answered
+    acked_type: int  # its message type
+    status: int  # OK or a reason code
+    mode: int  # the PLC mode after handling it
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.ack_seq, self.acked_type, self.status, self.mode)
+
+
+@dataclass(frozen=True)
+class Refused:
+    """PLC -> client, type 0x83: the connection is refused (sent before closing it)."""
+    TYPE = 0x83
+    reason: int
+    text: str
+
+    def pack(self) -> bytes:
+        return struct.pack("<B", self.reason) + self.text.encode("utf-8")[:MAX_PAYLOAD - 1]
+
+
+Message = Union[Setpoint, ModeRequest, Heartbeat, State, Ack, Refused]
+_FIXED = {cls.TYPE: cls for cls in (Setpoint, ModeRequest, Heartbeat, State, Ack)}
+
+
+def crc16(data: bytes) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection); check('123456789') = 0x29B1."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def encode(msg: Message, seq: int) -> bytes:
+    """One complete frame carrying ``msg`` with sequence number ``seq``."""
+    payload = msg.pack()
+    head = HEADER.pack(MAGIC, VERSION, msg.TYPE, seq & 0xFFFF, len(payload))
+    body = head + payload
+    return body + CRC.pack(crc16(body))
+
+
+def _decode_payload(mtype: int, payload: bytes) -> Message:
+    if mtype == Refused.TYPE:
+        if not payload:
+            raise ValueError("empty REFUSED payload")
+        return Refused(payload[0], payload[1:].decode("utf-8", errors="replace"))
+    cls = _FIXED.get(mtype)
+    if cls is None:
+        raise KeyError(mtype)
+    if len(payload) != cls.FMT.size:
+        raise ValueError(f"payload of {len(payload)} bytes, {cls.__name__} has {cls.FMT.size}")
+    return cls(*cls.FMT.unpack(payload))
+
+
+@dataclass
+class DecodeStats:
+    frames: int = 0
+    bytes_skipped: int = 0
+    errors: Dict[str, int] = field(default_factory=dict)
+
+    @property
+    def bad_frames(self) -> int:
+        return sum(self.errors.values())
+
+
+class FrameDecoder:
+    """Streaming frame decoder with resynchronisation (see module docstring).
+
+    ``feed(chunk)`` returns ``[(seq, message), ...]``; rejected input is counted in
+    ``stats.errors`` by reason, and ``pop_problems()`` returns human-readable reasons
+    since the last call (for logging).
+    """
+
+    REASONS = ("garbage", "bad version", "oversized", "bad checksum", "unknown type", "bad payload")
+
+    def __init__(self, max_buffer: int = 65536) -> None:
+        self.buf = bytearray()
+        self.max_buffer = max_buffer
+        self.stats = DecodeStats()
+        self._problems: List[str] = []
+
+    def _reject(self, reason: str, detail: str, skip: int) -> None:
+        self.stats.errors[reason] = self.stats.errors.get(reason, 0) + 1
+        self.stats.bytes_skipped += skip
+        self._problems.append(f"{reason}: {detail}")
+        del self.buf[:skip]
+
+    def pop_problems(self) -> List[str]:
+        out, self._problems = self._problems, []
+        return out
+
+    @property
+    def pending(self) -> int:
+        """Bytes held waiting for the rest of a frame."""
+        return len(self.buf)
+
+    def feed(self, chunk: bytes) -> List[Tuple[int, Message]]:
+        self.buf.extend(chunk)
+        out: List[Tuple[int, Message]] = []
+        while True:
+            start = self.buf.find(MAGIC)
+            if start < 0:
+                # Keep a possible first magic byte at the end; drop the rest.
+                keep = 1 if self.buf[-1:] == MAGIC[:1] else 0
+                if len(self.buf) > keep:
+                    self._reject("garbage", f"{len(self.buf) - keep} bytes without a frame start", len(self.buf) - keep)
+                break
+            if start > 0:
+                self._reject("garbage", f"{start} bytes before a frame start", start)
+            if len(self.buf) < HEADER.size:
+                break
+            _, version, mtype, seq, length = HEADER.unpack_from(self.buf, 0)
+            if version != VERSION:
+                self._reject("bad version", f"version {version}, expected {VERSION}", 1)
+                continue
+            if length > MAX_PAYLOAD:
+                self._reject("oversized", f"payload length {length} > {MAX_PAYLOAD}", 1)
+                continue
+            total = HEADER.size + length + CRC.size
+            if len(self.buf) < total:
+                if len(self.buf) > self.max_buffer:
+                    self._reject("garbage", "buffer overflow", len(self.buf))
+                break
+            body = bytes(self.buf[:HEADER.size + length])
+            (crc,) = CRC.unpack_from(self.buf, HEADER.size + length)
+            if crc != crc16(body):
+                self._reject("bad checksum", f"type 0x{mtype:02x} seq {seq}", 1)
+                continue
+            try:
+                msg = _decode_payload(mtype, body[HEADER.size:])
+            except KeyError:
+                self._reject("unknown type", f"type 0x{mtype:02x} seq {seq}", total)
+                continue
+            except (ValueError, struct.error) as exc:
+                self._reject("bad payload", f"type 0x{mtype:02x} seq {seq}: {exc}", total)
+                continue
+            del self.buf[:total]
+            self.stats.frames += 1
+            out.append((seq, msg))
+        return out
+
+
+def finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+def mode_name(mode: int) -> str:
+    return MODE_NAMES.get(mode, f"unknown({mode})")
+
+
+def parse_mode(text: Union[str, int]) -> Optional[int]:
+    """A mode from its name (case-insensitive) or number; None when unknown."""
+    if isinstance(text, int):
+        return text if text in MODE_NAMES else None
+    t = str(text).strip().upper()
+    if t.isdigit():
+        return int(t) if int(t) in MODE_NAMES else None
+    return MODE_BY_NAME.get(t)
