@@ -1,0 +1,1 @@
+"""Quadrivio localization core (ROS-free)."""

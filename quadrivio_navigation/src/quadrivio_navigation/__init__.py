@@ -1,0 +1,1 @@
+"""Quadrivio navigation core (ROS-free)."""

@@ -1,0 +1,1 @@
+"""Quadrivio sim core (ROS-free)."""

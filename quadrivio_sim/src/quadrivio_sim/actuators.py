@@ -1,0 +1,265 @@
+"""The low-level loops the vehicle's PLC runs: handlebar position and speed (paper section 3.2).
+
+Both loops are PID controllers closed around a servo model, stepped at the PLC cycle.
+The simulator does not model the steering column or the engine in detail; instead,
+as in the paper, the loops are modelled so that their step responses match the real
+vehicle's (Fig. 4). Their parameters are the ones ``calibrate`` identifies from bags.
+
+Handlebar (position servo)::
+
+    s_d(t)  = s(t - T_d)                             dead time T_d of the command path
+    u       = clip(PID(clip(s_d, +-h_max) - h), +-r_max)   rate command [rad/s]
+    w'      = (u - w) / tau_h                         servo velocity lag tau_h
+    h'      = w,  h in [-h_max, h_max] (mechanical stops)
+
+Speed (throttle/brake servos, torque at the wheels)::
+
+    u       = clip(PID(v_sp - v), -1, 1)
+    throttle_cmd = max(u, 0),  brake_cmd = max(b_sp, k_b * max(-u - d_b, 0))
+    throttle' = (throttle_cmd - throttle) / tau_t,  brake' = (brake_cmd - brake) / tau_b
+    T_drive = gear * throttle * T_max  -  c_eb * (1 - throttle) * w_wheel     (engine braking)
+    T_brake = brake * B_max                                                  (opposes rotation)
+
+The engine-braking term ``c_eb`` is what makes deceleration differ from acceleration
+when the throttle is suddenly closed (the mismatch of the paper's Fig. 4b).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Deque, Optional, Tuple
+
+from quadrivio_description.config import param
+from quadrivio_description.vehicle import VehicleParams
+
+
+def clamp(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else hi if x > hi else x
+
+
+@dataclass(frozen=True)
+class PidGains:
+    kp: float = param(lo=0.0, hi=1e4, doc="proportional gain [output per unit error]")
+    ki: float = param(0.0, lo=0.0, hi=1e4, doc="integral gain [output per unit error and second]")
+    kd: float = param(0.0, lo=0.0, hi=1e4, doc="derivative gain [output per unit error rate]")
+    i_limit: float = param(1.0, lo=0.0, hi=1e6, doc="bound on the integral term's contribution [output units]")
+
+
+class Pid:
+    """Parallel PID, derivative on the measurement (no kick on setpoint steps), clamped integrator.
+
+    ``u = kp e + I + kd d(-y)/dt`` with ``I += ki e dt`` kept within ``+-i_limit``; the
+    integrator is frozen while the output saturates in the direction of the error
+    (conditional integration, no wind-up).
+    """
+
+    def __init__(self, gains: PidGains, out_lo: float, out_hi: float) -> None:
+        self.g = gains
+        self.lo, self.hi = out_lo, out_hi
+        self.integral = 0.0
+        self._prev_meas: Optional[float] = None
+
+    def reset(self) -> None:
+        self.integral = 0.0
+        self._prev_meas = None
+
+    def update(self, setpoint: float, measurement: float, dt: float) -> float:
+        e = setpoint - measurement
+        d = 0.0
+        if self._prev_meas is not None and dt > 0.0:
+            d = -(measurement - self._prev_meas) / dt
+        self._prev_meas = measurement
+        unsat = self.g.kp * e + self.integral + self.g.kd * d
+        out = clamp(unsat, self.lo, self.hi)
+        saturated_same_way = (unsat > self.hi and e > 0.0) or (unsat < self.lo and e < 0.0)
+        if not saturated_same_way:
+            self.integral = clamp(self.integral + self.g.ki * e * dt, -self.g.i_limit, self.g.i_limit)
+        return out
+
+
+@dataclass(frozen=True)
+class HandlebarLoopParams:
+    pid: PidGains = param(doc="PID from angle error [rad] to rate command [rad/s]")
+    servo_tau: float = param(0.05, lo=0.0, hi=5.0, unit="s", doc="servo velocity time constant (0: ideal)")
+    dead_time: float = param(0.0, lo=0.0, hi=2.0, unit="s", doc="command path dead time")
+    max_rate: float = param(0.0, lo=0.0, hi=20.0, unit="rad/s",
+                            doc="rate limit; 0 takes steering.max_rate from the vehicle")
+    max_angle: float = param(0.0, lo=0.0, hi=1.5, unit="rad",
+                             doc="angle limit; 0 takes steering.max_angle from the vehicle")
+
+
+@dataclass(frozen=True)
+class SpeedLoopParams:
+    pid: PidGains = param(doc="PID from speed error [m/s] to throttle (+) / brake (-) demand in [-1, 1]")
+    throttle_tau: float = param(0.15, lo=0.0, hi=5.0, unit="s", doc="throttle servo time constant")
+    brake_tau: float = param(0.10, lo=0.0, hi=5.0, unit="s", doc="brake servo time constant")
+    brake_gain: float = param(1.0, lo=0.0, hi=10.0, doc="brake per unit of negative PID demand")
+    brake_deadband: float = param(0.05, lo=0.0, hi=1.0, doc="negative demand below which the loop only closes the throttle")
+    engine_brake: float = param(6.0, lo=0.0, hi=1e4, unit="N m s/rad",
+                                doc="engine braking torque per wheel rad/s at closed throttle (total)")
+    dead_time: float = param(0.0, lo=0.0, hi=2.0, unit="s", doc="command path dead time")
+
+
+@dataclass(frozen=True)
+class StepReference:
+    """What a step response of the real vehicle looks like, for validation (Fig. 4)."""
+    step: float = param(lo=-100.0, hi=100.0, doc="step amplitude [rad or m/s] from rest")
+    rise_time: float = param(lo=0.0, hi=60.0, unit="s", doc="10-90 % rise time")
+    rise_time_tol: float = param(0.2, lo=0.0, hi=1.0, doc="relative tolerance on the rise time")
+    max_overshoot: float = param(0.10, lo=0.0, hi=2.0, doc="overshoot as a fraction of the step")
+
+
+@dataclass(frozen=True)
+class ActuatorParams:
+    """Contents of ``config/actuators.yaml`` (what ``calibrate`` writes)."""
+    handlebar: HandlebarLoopParams = param()
+    speed: SpeedLoopParams = param()
+    handlebar_reference: Optional[StepReference] = param(None, doc="expected handlebar step response")
+    speed_reference: Optional[StepReference] = param(None, doc="expected speed step response")
+
+
+class _DelayLine:
+    """Pure transport delay of ``n`` samples (dead time = n x cycle)."""
+
+    def __init__(self, n: int, initial: float = 0.0) -> None:
+        self.buf: Deque[float] = deque([initial] * n, maxlen=n) if n > 0 else deque()
+        self.n = n
+
+    def push(self, x: float) -> float:
+        if self.n == 0:
+            return x
+        out = self.buf[0]
+        self.buf.append(x)
+        return out
+
+
+def first_order(y: float, target: float, tau: float, dt: float) -> float:
+    """Exact step of ``y' = (target - y) / tau`` over ``dt`` (``tau = 0``: jump to target)."""
+    if tau <= 0.0:
+        return target
+    return target + (y - target) * math.exp(-dt / tau)
+
+
+class HandlebarLoop:
+    """Handlebar position servo under PID control (see module docstring)."""
+
+    def __init__(self, p: HandlebarLoopParams, vehicle: VehicleParams, dt: float) -> None:
+        self.p = p
+        self.dt = dt
+        self.max_angle = p.max_angle or vehicle.steering.max_angle
+        self.max_rate = p.max_rate or vehicle.steering.max_rate
+        self.pid = Pid(p.pid, -self.max_rate, self.max_rate)
+        self.delay = _DelayLine(int(round(p.dead_time / dt)))
+        self.angle = 0.0  # [rad]
+        self.rate = 0.0  # [rad/s]
+
+    def reset(self, angle: float = 0.0) -> None:
+        self.angle, self.rate = angle, 0.0
+        self.pid.reset()
+        self.delay = _DelayLine(self.delay.n, angle)
+
+    def step(self, setpoint: float) -> float:
+        sp = clamp(self.delay.push(setpoint), -self.max_angle, self.max_angle)
+        u = self.pid.update(sp, self.angle, self.dt)
+        self.rate = first_order(self.rate, u, self.p.servo_tau, self.dt)
+        self.angle += self.rate * self.dt
+        if abs(self.angle) > self.max_angle:  # mechanical stop
+            self.angle = math.copysign(self.max_angle, self.angle)
+            self.rate = 0.0
+        return self.angle
+
+
+class SpeedLoop:
+    """Speed PID commanding throttle and brake servos; returns wheel torques (see module docstring)."""
+
+    def __init__(self, p: SpeedLoopParams, vehicle: VehicleParams, dt: float) -> None:
+        self.p = p
+        self.v = vehicle
+        self.dt = dt
+        self.pid = Pid(p.pid, -1.0, 1.0)
+        self.delay = _DelayLine(int(round(p.dead_time / dt)))
+        self.throttle = 0.0  # [1]
+        self.brake = 0.0  # [1]
+        self.gear = 1  # +1 forward, -1 reverse (engaged by the sign of the setpoint)
+
+    def reset(self) -> None:
+        self.pid.reset()
+        self.delay = _DelayLine(self.delay.n)
+        self.throttle = self.brake = 0.0
+        self.gear = 1
+
+    def step(self, speed_sp: float, brake_sp: float, speed: float, wheel_rate: float) -> Tuple[float, float]:
+        """One PLC cycle. ``speed`` [m/s] and ``wheel_rate`` [rad/s] are the measured rear wheel
+        speed and angular rate. Returns ``(drive_torque, brake_torque)`` [N m], totals over the
+        driven wheels and over all wheels respectively; the brake torque opposes rotation."""
+        sp = self.delay.push(speed_sp)
+        if sp > 1e-3:
+            self.gear = 1
+        elif sp < -1e-3:
+            self.gear = -1
+        # The loop works on the speed in the direction of travel of the engaged gear.
+        u = self.pid.update(self.gear * sp, self.gear * speed, self.dt)
+        throttle_cmd = max(u, 0.0)
+        brake_cmd = max(brake_sp, self.p.brake_gain * max(-u - self.p.brake_deadband, 0.0))
+        if abs(sp) <= 1e-3 and abs(speed) < 0.05:  # standing still with a zero setpoint: hold the brake
+            throttle_cmd, brake_cmd = 0.0, max(brake_cmd, 0.3)
+        self.throttle = first_order(self.throttle, clamp(throttle_cmd, 0.0, 1.0), self.p.throttle_tau, self.dt)
+        self.brake = first_order(self.brake, clamp(brake_cmd, 0.0, 1.0), self.p.brake_tau, self.dt)
+        drive = self.gear * self.throttle * self.v.drivetrain.max_drive_torque
+        drive -= self.p.engine_brake * (1.0 - self.throttle) * wheel_rate
+        return drive, self.brake * self.v.drivetrain.max_brake_torque
+
+
+@dataclass
+class Actuation:
+    """What the low-level loops command for one PLC cycle."""
+    handlebar: float = 0.0  # [rad] handlebar angle reached by the servo
+    drive_torque: float = 0.0  # [N m] total at the driven wheels (engine braking included)
+    brake_torque: float = 0.0  # [N m] total over all wheels, opposing rotation
+    throttle: float = 0.0  # [1]
+    brake: float = 0.0  # [1]
+
+
+class LowLevelControl:
+    """Both loops together, with setpoint limits from the vehicle parameters.
+
+    ``clamp`` bounds a setpoint to the vehicle's limits (speed in
+    ``[-max_reverse_speed, max_speed]``, handlebar within ``+-max_angle``, brake in
+    ``[0, 1]``) and says whether it had to.
+    """
+
+    def __init__(self, params: ActuatorParams, vehicle: VehicleParams, cycle: float) -> None:
+        self.params = params
+        self.vehicle = vehicle
+        self.cycle = cycle
+        self.handlebar = HandlebarLoop(params.handlebar, vehicle, cycle)
+        self.speed = SpeedLoop(params.speed, vehicle, cycle)
+        self.out = Actuation()
+
+    def reset(self) -> None:
+        self.handlebar.reset()
+        self.speed.reset()
+        self.out = Actuation()
+
+    def clamp(self, speed: float, handlebar: float, brake: float) -> Tuple[float, float, float, bool]:
+        d = self.vehicle.drivetrain
+        c_speed = clamp(speed, -d.max_reverse_speed, d.max_speed)
+        c_handlebar = clamp(handlebar, -self.handlebar.max_angle, self.handlebar.max_angle)
+        c_brake = clamp(brake, 0.0, 1.0)
+        return c_speed, c_handlebar, c_brake, (c_speed, c_handlebar, c_brake) != (speed, handlebar, brake)
+
+    def step(self, speed_sp: float, handlebar_sp: Optional[float], brake_sp: float,
+             wheel_speed: float, wheel_rate: float) -> Actuation:
+        """One cycle. ``handlebar_sp = None`` disables the handlebar servo (it holds its angle)."""
+        h = self.handlebar.angle if handlebar_sp is None else self.handlebar.step(handlebar_sp)
+        drive, brake_torque = self.speed.step(speed_sp, brake_sp, wheel_speed, wheel_rate)
+        self.out = Actuation(h, drive, brake_torque, self.speed.throttle, self.speed.brake)
+        return self.out
+
+
+def load_actuators(path: str) -> ActuatorParams:
+    from quadrivio_description.config import load_dataclass
+
+    return load_dataclass(ActuatorParams, path)

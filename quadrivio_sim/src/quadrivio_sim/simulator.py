@@ -1,0 +1,161 @@
+"""The simulator core: world, emulated PLC program and sensor schedule on one sim clock.
+
+Time is ``t = k * dt`` for step count ``k`` (no accumulated float error, identical
+stamps run to run). Each :meth:`Simulator.step`:
+
+1. every PLC cycle: a setpoint script, when set, feeds the PLC as the autonomous
+   source (open-loop runs, replays); the PLC program runs its watchdog and low-level loops on the
+   measured rear wheel speed, and the world receives handlebar angle and torques;
+2. the physics advances by ``dt``;
+3. every output whose period divides the new step count is sampled: ground truth,
+   joint states, PLC state, GPS, IMU, magnetometer, lasers, cameras.
+
+Every rate must be a whole number of physics steps; the check happens at start-up
+and names the offending key. ROS-free: the simulator node turns the returned samples
+into messages.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import ConfigError, param
+from quadrivio_description.vehicle import VehicleParams
+from quadrivio_plc import protocol as P
+
+from .actuators import ActuatorParams, LowLevelControl
+from .plc_emulator import PlcLogic, PlcParams
+from .script import SetpointScript
+from .sensors import (CameraSensor, GpsSensor, ImuSensor, LaserSensor, MagSensor, SensorsParams)
+from .terrain import TerrainParams
+from .world import Obstacle, PhysicsParams, Pose2D, World
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Contents of ``config/sim.yaml`` (the simulator node's private parameters)."""
+    physics: PhysicsParams = param(PhysicsParams())
+    terrain: TerrainParams = param(TerrainParams())
+    spawn: Pose2D = param(Pose2D(), doc="initial pose of base_link in the map frame")
+    obstacles: Tuple[Obstacle, ...] = param((), doc="static boxes and cylinders (trees, buildings)")
+    seed: int = param(0, lo=0, hi=2 ** 63 - 1, doc="seed of every random draw in the simulator (terrain)")
+    ground_truth_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="/ground_truth/odom rate")
+    joint_states_rate: float = param(20.0, lo=1.0, hi=1000.0, unit="Hz", doc="/joint_states rate")
+    sensors: SensorsParams = param(SensorsParams())
+    plc: PlcParams = param(PlcParams())
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    stamp: float
+    position: Tuple[float, float, float]  # base_link origin in map [m]
+    orientation: Tuple[float, float, float, float]  # x, y, z, w
+    linear_velocity: Tuple[float, float, float]  # [m/s] in map
+    angular_velocity: Tuple[float, float, float]  # [rad/s] in map
+
+
+@dataclass(frozen=True)
+class JointSample:
+    stamp: float
+    names: Tuple[str, ...]
+    positions: Tuple[float, ...]
+    velocities: Tuple[float, ...]
+
+
+def steps_per_period(rate: float, dt: float, key: str) -> int:
+    """Physics steps per sample period; the period must be a whole number of steps."""
+    n = 1.0 / (rate * dt)
+    k = int(round(n))
+    if k < 1 or abs(n - k) > 1e-6 * max(1.0, n):
+        raise ConfigError(f"'{key}' = {rate} Hz is not a whole number of physics steps of {dt} s "
+                          f"(1 / (rate x dt) = {n:.4f}); pick a rate that divides {1.0 / dt:g} Hz")
+    return k
+
+
+class Simulator:
+    def __init__(self, params: SimParams, vehicle: VehicleParams, actuators: ActuatorParams,
+                 urdf_text: str) -> None:
+        self.params = params
+        self.vehicle = vehicle
+        self.dt = params.physics.dt
+        self.rng = np.random.default_rng(params.seed)
+        self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
+                           params.spawn)
+        self.control = LowLevelControl(actuators, vehicle, params.plc.cycle)
+        self.plc = PlcLogic(params.plc, self.control)
+        s = params.sensors
+        dt = self.dt
+        self.cycle_steps = steps_per_period(1.0 / params.plc.cycle, dt, "plc.cycle")
+        self.gps = GpsSensor(self.world)
+        self.imu = ImuSensor(self.world, s.imu.rate)
+        self.mag = MagSensor(self.world, s.mag)
+        self.lasers = [LaserSensor(self.world, s.lasers, f) for f in s.lasers.frames]
+        self.cameras = [CameraSensor(self.world, s.cameras, f) for f in s.cameras.frames] if s.cameras.enabled else []
+        # (name, period in steps, sampler)
+        self.outputs: List[Tuple[str, int, Callable[[float], object]]] = [
+            ("ground_truth", steps_per_period(params.ground_truth_rate, dt, "ground_truth_rate"), self._ground_truth),
+            ("joint_states", steps_per_period(params.joint_states_rate, dt, "joint_states_rate"), self._joints),
+            ("plc_state", steps_per_period(params.plc.state_rate, dt, "plc.state_rate"), self._plc_state),
+            ("gps", steps_per_period(s.gps.rate, dt, "sensors.gps.rate"), self.gps.sample),
+            ("imu", steps_per_period(s.imu.rate, dt, "sensors.imu.rate"), self.imu.sample),
+            ("mag", steps_per_period(s.mag.rate, dt, "sensors.mag.rate"), self.mag.sample),
+        ]
+        scan_steps = steps_per_period(s.lasers.rate, dt, "sensors.lasers.rate")
+        for laser in self.lasers:
+            self.outputs.append(("scan", scan_steps, laser.sample))
+        if self.cameras:
+            cam_steps = steps_per_period(s.cameras.rate, dt, "sensors.cameras.rate")
+            for cam in self.cameras:
+                self.outputs.append(("image", cam_steps, cam.sample))
+        self.enabled: Dict[str, bool] = {name: True for name, _, _ in self.outputs}
+        self.script: Optional[SetpointScript] = None
+        self.steps = 0
+
+    @property
+    def t(self) -> float:
+        """Sim time [s]."""
+        return self.steps * self.dt
+
+    def reset(self, spawn: Optional[Pose2D] = None) -> None:
+        """Back to t = 0 with the vehicle at rest at ``spawn`` (default: the configured spawn)."""
+        self.steps = 0
+        self.world.reset(spawn)
+        self.plc.reset(0.0)
+        self.imu.reset()
+
+    def step(self) -> List[Tuple[str, object]]:
+        """Advance one physics step; returns the samples due at the new time."""
+        w = self.world
+        if self.steps % self.cycle_steps == 0:
+            if self.script is not None:
+                self.plc.force_auto(self.t)
+                self.plc.setpoint(P.SOURCE_AUTO, *self.script.at(self.t))
+            act = self.plc.cycle(self.t, w.rear_wheel_speed, w.rear_wheel_rate)
+            w.set_handlebar(act.handlebar)
+            w.set_drive_torque(act.drive_torque)
+            w.set_brake(act.brake_torque)
+        w.step()
+        self.steps += 1
+        t = self.t
+        due = []
+        for name, period, sampler in self.outputs:
+            if self.steps % period == 0 and self.enabled[name]:
+                due.append((name, sampler(t)))
+        return due
+
+    def _ground_truth(self, t: float) -> GroundTruth:
+        pos, orn, v, w = self.world.base_state()
+        return GroundTruth(t, pos, orn, v, w)
+
+    def _joints(self, t: float) -> JointSample:
+        names, pos, vel = self.world.joint_positions()
+        return JointSample(t, tuple(names), tuple(pos), tuple(vel))
+
+    def _plc_state(self, t: float):
+        return self.plc.state(t, self.world.rear_wheel_speed)
+
+    def close(self) -> None:
+        self.world.close()

@@ -1,0 +1,152 @@
+"""The simulator core without ROS: physics properties, sensors, determinism, schedules."""
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio_description.config import ConfigError, from_mapping, load_yaml
+from quadrivio_description.urdf import build_urdf
+from quadrivio_description.vehicle import GRAVITY, load_vehicle
+from quadrivio_sim.actuators import load_actuators
+from quadrivio_sim.paths import package_file
+from quadrivio_sim.script import ScriptRow, SetpointScript
+from quadrivio_sim.sensors import earth_field_enu
+from quadrivio_sim.simulator import SimParams, Simulator, steps_per_period
+from quadrivio_sim.world import Obstacle, quat_to_matrix, quat_to_rpy
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle()
+
+
+@pytest.fixture(scope="module")
+def actuators():
+    return load_actuators(package_file("config", "actuators.yaml"))
+
+
+def default_params(**changes):
+    data = load_yaml(package_file("config", "sim.yaml"))
+    data.update(changes)
+    return from_mapping(SimParams, data, "sim.yaml")
+
+
+def make_sim(vehicle, actuators, **changes):
+    return Simulator(default_params(**changes), vehicle, actuators, build_urdf(vehicle))
+
+
+def run(sim, seconds, keep=("ground_truth",)):
+    out = {k: [] for k in keep}
+    while sim.t < seconds - 1e-9:
+        for name, sample in sim.step():
+            if name in out:
+                out[name].append(sample)
+    return out
+
+
+def test_rest_on_flat_ground(vehicle, actuators):
+    sim = make_sim(vehicle, actuators)
+    out = run(sim, 2.0, ("ground_truth", "imu", "mag", "gps"))
+    gt = out["ground_truth"][-1]
+    # base_link (rear axle centre) at the wheel radius minus the tyre's static deflection.
+    assert gt.position[2] == pytest.approx(vehicle.wheel_radius, abs=0.03)
+    assert max(abs(c) for c in gt.linear_velocity) < 0.01
+    imu = out["imu"][-1]
+    assert imu.specific_force == pytest.approx((0.0, 0.0, GRAVITY), abs=0.05)
+    assert imu.angular_rate == pytest.approx((0.0, 0.0, 0.0), abs=1e-3)
+    mag = out["mag"][-1]
+    assert mag.field == pytest.approx(tuple(earth_field_enu(default_params().sensors.mag)), abs=5e-7)
+    gps = out["gps"][-1]
+    R = quat_to_matrix(gt.orientation)
+    expected = np.asarray(gt.position) + R @ np.asarray(vehicle.sensors["gps_link"].xyz)
+    assert gps.position == pytest.approx(tuple(expected), abs=1e-3)
+
+
+def test_sensor_rates(vehicle, actuators):
+    sim = make_sim(vehicle, actuators)
+    out = run(sim, 2.0, ("ground_truth", "imu", "mag", "gps", "scan", "plc_state", "joint_states"))
+    assert len(out["imu"]) == 200
+    assert len(out["mag"]) == 100
+    assert len(out["gps"]) == 10
+    assert len(out["scan"]) == 2 * 20
+    assert len(out["ground_truth"]) == 100
+    assert len(out["plc_state"]) == 100
+    stamps = [s.stamp for s in out["imu"]]
+    assert np.allclose(np.diff(stamps), 0.01)
+
+
+def test_rate_must_divide_physics_step():
+    with pytest.raises(ConfigError, match="'sensors.imu.rate' = 33.0 Hz is not a whole number"):
+        steps_per_period(33.0, 0.005, "sensors.imu.rate")
+    assert steps_per_period(100.0, 0.005, "x") == 2
+
+
+def test_laser_sees_obstacle(vehicle, actuators):
+    # A wall 8 m ahead of the front scanner, 10 m wide: the forward ray reads 8 m.
+    laser_x = vehicle.sensors["laser_front"].xyz[0]
+    wall = Obstacle("box", (laser_x + 8.0 + 0.5, 0.0), (1.0, 10.0, 2.0))
+    sim = make_sim(vehicle, actuators, obstacles=[{"kind": "box", "xy": list(wall.xy), "size": list(wall.size)}])
+    scans = [s for s in run(sim, 0.5, ("scan",))["scan"] if s.frame == "laser_front"]
+    scan = scans[-1]
+    mid = len(scan.ranges) // 2
+    assert scan.ranges[mid] == pytest.approx(8.0, abs=0.03)
+    rear = [s for s in run(sim, 1.0, ("scan",))["scan"] if s.frame == "laser_rear"][-1]
+    assert math.isinf(rear.ranges[len(rear.ranges) // 2])  # nothing behind
+
+
+def _circle_radius(xs, ys):
+    A = np.c_[2 * xs, 2 * ys, np.ones_like(xs)]
+    c = np.linalg.lstsq(A, xs ** 2 + ys ** 2, rcond=None)[0]
+    return math.sqrt(c[2] + c[0] ** 2 + c[1] ** 2)
+
+
+@pytest.mark.parametrize("handlebar", [0.15, -0.3])
+def test_constant_handlebar_drives_circle(vehicle, actuators, handlebar):
+    sim = make_sim(vehicle, actuators)
+    sim.script = SetpointScript([ScriptRow(0.0, 1.5, handlebar, 0.0)])
+    gts = run(sim, 40.0)["ground_truth"]
+    pts = np.array([g.position[:2] for g in gts if g.stamp > 10.0])
+    R = _circle_radius(pts[:, 0], pts[:, 1])
+    assert R == pytest.approx(vehicle.wheelbase / math.tan(abs(handlebar)), rel=0.05)
+    yaw_rate = gts[-1].angular_velocity[2]
+    assert math.copysign(1, yaw_rate) == math.copysign(1, handlebar)  # positive handlebar turns left
+
+
+def test_same_seed_same_run(vehicle, actuators):
+    script = SetpointScript([ScriptRow(0.0, 2.0, 0.0, 0.0), ScriptRow(3.0, 3.0, 0.25, 0.0),
+                             ScriptRow(6.0, 1.0, -0.2, 0.0), ScriptRow(9.0, 0.0, 0.0, 0.5)])
+    terrain = {"kind": "procedural", "size": 60.0, "roughness": 0.04, "resolution": 0.5}
+    traces = []
+    for _ in range(2):
+        sim = make_sim(vehicle, actuators, seed=7, terrain=terrain)
+        sim.script = script
+        gts = run(sim, 12.0)["ground_truth"]
+        traces.append(np.array([g.position + g.orientation for g in gts]))
+        sim.close()
+    assert traces[0].shape == traces[1].shape
+    assert np.array_equal(traces[0], traces[1])  # bit for bit
+    assert np.ptp(traces[0][:, 0]) > 10.0  # it did drive
+
+
+def test_reset_returns_to_start(vehicle, actuators):
+    sim = make_sim(vehicle, actuators)
+    sim.script = SetpointScript([ScriptRow(0.0, 2.0, 0.1, 0.0)])
+    run(sim, 3.0)
+    sim.script = None
+    sim.reset()
+    assert sim.t == 0.0
+    gt = run(sim, 0.5)["ground_truth"][-1]
+    assert gt.position[:2] == pytest.approx((0.0, 0.0), abs=0.02)
+    assert abs(quat_to_rpy(gt.orientation)[2]) < 1e-3
+
+
+def test_heightfield_spawn_and_slope(vehicle, actuators):
+    terrain = {"kind": "procedural", "size": 60.0, "roughness": 0.0, "slope": [0.1, 0.0], "flat_radius": 0.0}
+    sim = make_sim(vehicle, actuators, terrain=terrain, spawn={"x": 5.0, "y": 0.0, "yaw": 0.0})
+    gt = run(sim, 3.0)["ground_truth"][-1]
+    ground = sim.world.ground_height(gt.position[0], gt.position[1])
+    assert ground == pytest.approx(0.1 * gt.position[0], abs=0.05)
+    assert gt.position[2] - ground == pytest.approx(vehicle.wheel_radius, abs=0.06)
+    pitch = quat_to_rpy(gt.orientation)[1]
+    assert pitch == pytest.approx(-math.atan(0.1), abs=0.02)  # nose up on an uphill slope (REP-103)
+    assert abs(gt.linear_velocity[0]) < 0.05  # the brake holds it on the slope
