@@ -1,0 +1,119 @@
+"""Helpers shared by the benchmarks: a private ROS master, launching, CPU accounting,
+and writing bench/results/<name>.json."""
+import contextlib
+import json
+import os
+import platform
+import signal
+import socket
+import subprocess
+import time
+import xmlrpc.client
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+
+
+def machine() -> str:
+    cpu = ""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{platform.node()}: {os.cpu_count()} cores, {cpu}, Python {platform.python_version()}, {platform.platform()}"
+
+
+def write_result(name: str, result: dict) -> str:
+    os.makedirs(RESULTS, exist_ok=True)
+    path = os.path.join(RESULTS, f"{name}.json")
+    with open(path, "w") as fh:
+        json.dump(result, fh, indent=2, sort_keys=True)
+        fh.write("\n")
+    print(f"[bench] wrote {os.path.relpath(path, os.path.dirname(HERE))}", flush=True)
+    return path
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RosSession:
+    """A roscore on a free port (ROS_MASTER_URI set for this process) and launched files."""
+
+    def __init__(self):
+        self.port = free_port()
+        self.uri = f"http://127.0.0.1:{self.port}"
+        os.environ["ROS_MASTER_URI"] = self.uri
+        self.procs = []
+        self.logs = []
+        self.procs.append(self._spawn(["roscore", "-p", str(self.port)], "roscore"))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                xmlrpc.client.ServerProxy(self.uri).getSystemState("/bench")
+                return
+            except OSError:
+                time.sleep(0.1)
+        raise RuntimeError("roscore did not start")
+
+    def _spawn(self, cmd, tag):
+        log = open(os.path.join(RESULTS, f".{tag}.log"), "w")
+        self.logs.append(log)
+        return subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+
+    def launch(self, pkg, launch_file, *args):
+        os.makedirs(RESULTS, exist_ok=True)
+        tag = os.path.splitext(os.path.basename(launch_file))[0]
+        self.procs.append(self._spawn(["roslaunch", "--wait", pkg, launch_file, *args], tag))
+
+    def close(self):
+        for p in reversed(self.procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in reversed(self.procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+        for log in self.logs:
+            log.close()
+
+
+@contextlib.contextmanager
+def ros_session():
+    os.makedirs(RESULTS, exist_ok=True)
+    session = RosSession()
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def node_pid(node: str) -> int:
+    import rosnode
+    import rosgraph
+
+    uri = rosnode.get_api_uri(rosgraph.Master("/bench"), node)
+    return int(xmlrpc.client.ServerProxy(uri).getPid("/bench")[2])
+
+
+def process_cpu_seconds(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    ticks = os.sysconf("SC_CLK_TCK")
+    return (int(fields[11]) + int(fields[12])) / ticks  # utime + stime
+
+
+def node_cpu_seconds(node: str) -> float:
+    return process_cpu_seconds(node_pid(node))
+
+
+def wait_for(predicate, timeout, what):
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"timed out waiting for {what}")
+        time.sleep(0.05)
