@@ -1,0 +1,300 @@
+"""PLCClient core: the manual/autonomous multiplexer and the TCP link to the PLC.
+
+Both are ROS-free. :class:`Multiplexer` decides, for the PLC's mode, which setpoint
+frames to send (paper section 2.2: the PLC node "acts as a multiplexer between the
+autonomous drive and the manual setpoints, depending on the current operating mode").
+:class:`PlcLink` owns the socket: it connects with exponential backoff, decodes the
+PLC's frames with the shared codec, measures round-trip times from each frame to its
+ACK, and counts bad and lost frames. Sending is thread-safe; receiving happens in
+:meth:`PlcLink.poll`, called from one I/O thread.
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import socket
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Deque, Dict, List, Optional, Tuple
+
+from quadrivio_description.config import param
+
+from . import protocol as P
+
+
+@dataclass(frozen=True)
+class PlcClientParams:
+    host: str = param("127.0.0.1", doc="PLC address: loopback for the emulated PLC, the vehicle's PLC on the real one")
+    port: int = param(P.DEFAULT_PORT, lo=1, hi=65535, doc="PLC TCP port")
+    send_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="setpoint / heartbeat rate (ROS time)")
+    setpoint_timeout: float = param(0.25, lo=0.01, hi=10.0, unit="s",
+                                    doc="a setpoint older than this is replaced by a stop")
+    stop_brake: float = param(0.5, lo=0.0, hi=1.0, doc="brake of the stop sent for stale setpoints")
+    connect_timeout: float = param(1.0, lo=0.05, hi=30.0, unit="s", doc="TCP connect timeout (wall)")
+    reconnect_min: float = param(0.1, lo=0.01, hi=60.0, unit="s", doc="first reconnection delay (wall)")
+    reconnect_max: float = param(5.0, lo=0.01, hi=600.0, unit="s", doc="longest reconnection delay (wall)")
+    mode_timeout: float = param(1.0, lo=0.05, hi=30.0, unit="s", doc="wait for the PLC to answer a mode request")
+    frame_id: str = param("base_link", doc="frame_id of /vehicle/state")
+
+
+@dataclass
+class _Latest:
+    t: float  # [s] ROS time of arrival
+    speed: float
+    handlebar: float
+    brake: float
+
+
+class Multiplexer:
+    """Latest setpoint of each source, and the frames the PLC's mode wants from them.
+
+    ``frames(mode, now)`` returns protocol messages: MANUAL forwards the manual source,
+    AUTO the autonomous one, ASSISTED the autonomous handlebar plus the manual speed and
+    brake (two frames), SAFE and HALT only a heartbeat. A source silent for longer than
+    ``timeout`` is replaced by a stop (speed 0, brake ``stop_brake``, handlebar held).
+    """
+
+    def __init__(self, timeout: float, stop_brake: float) -> None:
+        self.timeout = timeout
+        self.stop_brake = stop_brake
+        self.latest: Dict[int, Optional[_Latest]] = {P.SOURCE_MANUAL: None, P.SOURCE_AUTO: None}
+        self.held_handlebar: Dict[int, float] = {P.SOURCE_MANUAL: 0.0, P.SOURCE_AUTO: 0.0}
+        self.stale: Dict[int, bool] = {P.SOURCE_MANUAL: False, P.SOURCE_AUTO: False}
+
+    def update(self, source: int, t: float, speed: float, handlebar: float, brake: float) -> None:
+        self.latest[source] = _Latest(t, speed, handlebar, brake)
+
+    def _setpoint(self, source: int, now: float) -> P.Setpoint:
+        sp = self.latest[source]
+        fresh = sp is not None and 0.0 <= now - sp.t <= self.timeout
+        self.stale[source] = not fresh
+        if not fresh:
+            return P.Setpoint(source, 0.0, self.held_handlebar[source], self.stop_brake)
+        self.held_handlebar[source] = sp.handlebar
+        return P.Setpoint(source, sp.speed, sp.handlebar, sp.brake)
+
+    def frames(self, mode: int, now: float) -> List[P.Message]:
+        if mode == P.MODE_MANUAL:
+            return [self._setpoint(P.SOURCE_MANUAL, now)]
+        if mode == P.MODE_AUTO:
+            return [self._setpoint(P.SOURCE_AUTO, now)]
+        if mode == P.MODE_ASSISTED:
+            return [self._setpoint(P.SOURCE_AUTO, now), self._setpoint(P.SOURCE_MANUAL, now)]
+        return [P.Heartbeat()]
+
+    def accepts(self, mode: int, source: int) -> bool:
+        """Whether a new setpoint of ``source`` is forwarded at once in ``mode``."""
+        return (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
+               (mode == P.MODE_AUTO and source == P.SOURCE_AUTO) or mode == P.MODE_ASSISTED
+
+
+@dataclass
+class LinkStats:
+    connects: int = 0
+    disconnects: int = 0
+    frames_sent: int = 0
+    frames_received: int = 0
+    states_received: int = 0
+    acks_received: int = 0
+    lost_frames: int = 0  # sequence gaps in the PLC's frames
+    unanswered: int = 0  # our frames never acknowledged (dropped from the RTT table)
+    refused: int = 0
+
+
+class PlcLink:
+    """TCP link to the PLC (see module docstring).
+
+    Callbacks run in the thread that calls :meth:`poll`: ``on_state(State)``,
+    ``on_ack(Ack)``, ``on_event(level, text)`` for connection events and rejected input.
+    """
+
+    RTT_WINDOW = 100_000  # round-trip times kept for the percentiles (10 min at 2 x 50 Hz fits)
+
+    def __init__(self, host: str, port: int, *, connect_timeout: float = 1.0, reconnect_min: float = 0.1,
+                 reconnect_max: float = 5.0, on_state: Callable[[P.State], None] = lambda s: None,
+                 on_ack: Callable[[P.Ack], None] = lambda a: None,
+                 on_event: Callable[[str, str], None] = lambda level, text: None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.host, self.port = host, port
+        self.connect_timeout = connect_timeout
+        self.reconnect_min, self.reconnect_max = reconnect_min, reconnect_max
+        self.on_state, self.on_ack, self.on_event = on_state, on_ack, on_event
+        self.clock = clock
+        self.sel = selectors.DefaultSelector()
+        self.sock: Optional[socket.socket] = None
+        self.lock = threading.Lock()  # socket, out buffer, sequence numbers, sent times
+        self.out = bytearray()
+        self.seq = 0
+        self.sent_at: Dict[int, float] = {}
+        self.ack_callbacks: Dict[int, Callable[[P.Ack], None]] = {}
+        self.rtts: Deque[float] = deque(maxlen=self.RTT_WINDOW)
+        self.decoder = P.FrameDecoder()
+        self.peer_seq: Optional[int] = None
+        self.stats = LinkStats()
+        self.backoff = reconnect_min
+        self.next_attempt = 0.0
+        self.last_rx = -math.inf
+        self.last_error = ""
+
+    @property
+    def connected(self) -> bool:
+        return self.sock is not None
+
+    # ------------------------------------------------------------ connecting
+    def _connect(self) -> None:
+        now = self.clock()
+        if now < self.next_attempt:
+            return
+        try:
+            sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
+        except OSError as exc:
+            self.last_error = f"cannot connect to the PLC at {self.host}:{self.port}: {exc.strerror or exc}"
+            self.on_event("warn", f"{self.last_error}; next attempt in {self.backoff:.1f} s")
+            self.next_attempt = now + self.backoff
+            self.backoff = min(self.backoff * 2.0, self.reconnect_max)
+            return
+        sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        with self.lock:
+            self.sock = sock
+            self.out.clear()
+            self.sent_at.clear()
+            self.ack_callbacks.clear()
+        self.decoder = P.FrameDecoder()
+        self.peer_seq = None
+        self.sel.register(sock, selectors.EVENT_READ)
+        self.stats.connects += 1
+        self.backoff = self.reconnect_min
+        self.last_rx = now
+        self.last_error = ""
+        self.on_event("info", f"connected to the PLC at {self.host}:{self.port}")
+
+    def _drop(self, why: str) -> None:
+        with self.lock:
+            sock, self.sock = self.sock, None
+        if sock is None:
+            return
+        try:
+            self.sel.unregister(sock)
+        except (KeyError, ValueError):
+            pass
+        sock.close()
+        self.stats.disconnects += 1
+        self.last_error = why
+        self.next_attempt = self.clock() + self.backoff
+        self.on_event("warn", f"PLC link lost ({why}); reconnecting in {self.backoff:.1f} s")
+        self.backoff = min(self.backoff * 2.0, self.reconnect_max)
+
+    def close(self) -> None:
+        self._drop("closed")
+        self.sel.close()
+
+    # --------------------------------------------------------------- sending
+    def send(self, msg: P.Message, on_ack: Optional[Callable[[P.Ack], None]] = None) -> Optional[int]:
+        """Send ``msg``; returns its sequence number, None when not connected.
+
+        ``on_ack`` is called (in the polling thread) with the PLC's ACK of this frame; it is
+        registered before the frame leaves, so a fast answer cannot be missed.
+        """
+        with self.lock:
+            if self.sock is None:
+                return None
+            seq = self.seq
+            self.seq = (self.seq + 1) & 0xFFFF
+            self.out += P.encode(msg, seq)
+            self.sent_at[seq] = self.clock()
+            if on_ack is not None:
+                self.ack_callbacks[seq] = on_ack
+            if len(self.sent_at) > 1000:  # never answered: forget the oldest
+                oldest = next(iter(self.sent_at))
+                del self.sent_at[oldest]
+                self.ack_callbacks.pop(oldest, None)
+                self.stats.unanswered += 1
+            self.stats.frames_sent += 1
+            error = self._flush_locked()
+        if error:
+            self._drop(error)
+        return seq
+
+    def _flush_locked(self) -> str:
+        try:
+            while self.out:
+                n = self.sock.send(self.out)  # type: ignore[union-attr]
+                del self.out[:n]
+        except BlockingIOError:
+            if len(self.out) > 1 << 20:
+                return "the PLC does not read (1 MiB of frames queued)"
+        except OSError as exc:
+            return str(exc)
+        return ""
+
+    # ------------------------------------------------------------- receiving
+    def poll(self, timeout: float) -> None:
+        """Connect if needed, then handle incoming frames for at most ``timeout`` s."""
+        if self.sock is None:
+            self._connect()
+            if self.sock is None:
+                wait = max(0.0, min(timeout, self.next_attempt - self.clock()))
+                if wait > 0:
+                    threading.Event().wait(wait)
+                return
+        for _key, _ in self.sel.select(timeout=timeout):
+            self._read()
+        with self.lock:
+            error = self._flush_locked() if self.sock is not None and self.out else ""
+        if error:
+            self._drop(error)
+
+    def _read(self) -> None:
+        sock = self.sock
+        if sock is None:
+            return
+        try:
+            data = sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._drop(str(exc))
+            return
+        if not data:
+            self._drop("connection closed by the PLC")
+            return
+        now = self.clock()
+        self.last_rx = now
+        for seq, msg in self.decoder.feed(data):
+            self.stats.frames_received += 1
+            if self.peer_seq is not None:
+                gap = (seq - self.peer_seq - 1) & 0xFFFF
+                if gap:
+                    self.stats.lost_frames += gap
+                    self.on_event("warn", f"{gap} PLC frame(s) lost before seq {seq}")
+            self.peer_seq = seq
+            if isinstance(msg, P.State):
+                self.stats.states_received += 1
+                self.on_state(msg)
+            elif isinstance(msg, P.Ack):
+                self.stats.acks_received += 1
+                with self.lock:
+                    sent = self.sent_at.pop(msg.ack_seq, None)
+                    callback = self.ack_callbacks.pop(msg.ack_seq, None)
+                if sent is not None:
+                    self.rtts.append(now - sent)
+                if callback is not None:
+                    callback(msg)
+                self.on_ack(msg)
+            elif isinstance(msg, P.Refused):
+                self.stats.refused += 1
+                self._drop(f"refused by the PLC: {msg.text}")
+                return
+        for problem in self.decoder.pop_problems():
+            self.on_event("warn", f"frame from the PLC rejected ({problem}); skipped")
+
+    def rtt_percentiles(self, *qs: float) -> Tuple[float, ...]:
+        """Round-trip time percentiles [s] over the last frames (NaN before any)."""
+        data = sorted(self.rtts)
+        if not data:
+            return tuple(math.nan for _ in qs)
+        return tuple(data[min(len(data) - 1, int(q / 100.0 * len(data)))] for q in qs)

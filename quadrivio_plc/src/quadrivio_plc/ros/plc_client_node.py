@@ -1,0 +1,183 @@
+"""PLCClient: the ROS node that talks to the real or emulated PLC (see ``PROTOCOL.md``).
+
+Parameters (private): ``~host`` (str, 127.0.0.1), ``~port`` (int, 5020), ``~send_rate``
+(Hz, 50), ``~setpoint_timeout`` (s, 0.25), ``~stop_brake`` (0.5), ``~connect_timeout``
+(s, 1), ``~reconnect_min`` / ``~reconnect_max`` (s, 0.1 / 5), ``~mode_timeout`` (s, 1),
+``~frame_id`` (base_link), ``~initial_mode`` (str, "": request this mode once connected).
+
+Subscribes: ``vehicle/setpoint/auto``, ``vehicle/setpoint/manual`` (quadrivio_plc/Setpoint).
+Publishes: ``vehicle/state`` (quadrivio_plc/VehicleState) for every PLC state frame,
+``/diagnostics`` (link health).
+Services: ``~set_mode`` (quadrivio_plc/SetMode).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import threading
+from dataclasses import dataclass
+from typing import Dict
+
+import rospy
+from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_updater import Updater
+
+from quadrivio_description.config import param
+from quadrivio_description.ros.params import node_params, private_params, split_params
+
+from .. import protocol as P
+from ..client import Multiplexer, PlcClientParams, PlcLink
+from ..msg import Setpoint, VehicleState
+from ..srv import SetMode, SetModeResponse
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    initial_mode: str = param("", choices=("", "HALT", "SAFE", "MANUAL", "ASSISTED", "AUTO"),
+                              doc="mode to request once connected (empty: none)")
+
+
+class PlcClientNode:
+    def __init__(self) -> None:
+        mine, rest = split_params(private_params(), NodeParams)
+        self.np: NodeParams = node_params(NodeParams, mine)
+        self.p: PlcClientParams = node_params(PlcClientParams, rest)
+        self.mux = Multiplexer(self.p.setpoint_timeout, self.p.stop_brake)
+        self.mode = -1  # unknown until the first state frame
+        self.faults = 0
+        self.rejected: Dict[int, int] = {}
+        self.bad_input = 0
+        self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
+        self.link = PlcLink(self.p.host, self.p.port, connect_timeout=self.p.connect_timeout,
+                            reconnect_min=self.p.reconnect_min, reconnect_max=self.p.reconnect_max,
+                            on_state=self._on_state, on_ack=self._on_ack, on_event=self._log)
+        rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO, queue_size=10)
+        rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint, P.SOURCE_MANUAL, queue_size=10)
+        rospy.Service("~set_mode", SetMode, self._srv_set_mode)
+        self.diag = Updater()
+        self.diag.setHardwareID(f"PLC {self.p.host}:{self.p.port}")
+        self.diag.add("PLC link", self._diagnose)
+        self.io = threading.Thread(target=self._io_loop, name="plc_io", daemon=True)
+        self.io.start()
+        rospy.Timer(rospy.Duration(1.0 / self.p.send_rate), self._tick)
+        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+        self.initial_sent = False
+
+    # -------------------------------------------------------------- link I/O
+    def _io_loop(self) -> None:
+        while not rospy.is_shutdown():
+            self.link.poll(0.05)
+        self.link.close()
+
+    def _log(self, level: str, text: str) -> None:
+        if level == "info":
+            rospy.loginfo(text)
+        else:
+            rospy.logwarn_throttle(2.0, text)
+
+    def _on_state(self, s: P.State) -> None:
+        first = self.mode < 0
+        self.mode, self.faults = s.mode, s.faults
+        m = VehicleState()
+        m.header.stamp = rospy.Time.now()
+        m.header.frame_id = self.p.frame_id
+        m.wheel_speed, m.handlebar, m.throttle, m.brake = s.wheel_speed, s.handlebar, s.throttle, s.brake
+        m.mode, m.faults, m.plc_time = s.mode, s.faults, s.plc_time
+        m.setpoint_speed, m.setpoint_handlebar = s.setpoint_speed, s.setpoint_handlebar
+        self.pub_state.publish(m)
+        if first:
+            rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
+        if self.np.initial_mode and not self.initial_sent:
+            self.initial_sent = True
+            threading.Thread(target=self._request_mode, args=(P.MODE_BY_NAME[self.np.initial_mode],),
+                             daemon=True).start()
+
+    def _on_ack(self, ack: P.Ack) -> None:
+        self.mode = ack.mode
+        if ack.acked_type == P.Setpoint.TYPE and ack.status not in (P.OK,):
+            self.rejected[ack.status] = self.rejected.get(ack.status, 0) + 1
+            rospy.logwarn_throttle(2.0, "PLC: setpoint %s (mode %s)", P.STATUS_NAMES.get(ack.status, ack.status),
+                                   P.mode_name(ack.mode))
+
+    # ------------------------------------------------------------- setpoints
+    def _on_setpoint(self, msg: Setpoint, source: int) -> None:
+        if not all(math.isfinite(v) for v in (msg.speed, msg.handlebar, msg.brake)):
+            self.bad_input += 1
+            rospy.logwarn_throttle(2.0, "dropped a %s setpoint with a value that is not a finite number "
+                                   "(speed %r, handlebar %r, brake %r)", P.SOURCE_NAMES[source], msg.speed,
+                                   msg.handlebar, msg.brake)
+            return
+        now = rospy.get_time()
+        self.mux.update(source, now, msg.speed, msg.handlebar, msg.brake)
+        if self.mux.accepts(self.mode, source):  # forward at once: no extra latency
+            for frame in self.mux.frames(self.mode, now):
+                if frame.source == source:  # type: ignore[union-attr]
+                    self.link.send(frame)
+
+    def _tick(self, _event) -> None:
+        if not self.link.connected:
+            return
+        for frame in self.mux.frames(self.mode, rospy.get_time()):
+            self.link.send(frame)
+        if self.mode in (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO):
+            for source, stale in self.mux.stale.items():
+                if stale and self.mux.accepts(self.mode, source):
+                    rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop",
+                                           P.SOURCE_NAMES[source], self.p.setpoint_timeout, P.mode_name(self.mode))
+
+    # ------------------------------------------------------------------ mode
+    def _request_mode(self, mode: int):
+        event = threading.Event()
+        answer = []
+        sent = self.link.send(P.ModeRequest(mode), on_ack=lambda ack: (answer.append(ack), event.set()))
+        if sent is None:
+            return False, f"not connected to the PLC ({self.link.last_error})"
+        if not event.wait(self.p.mode_timeout):
+            return False, f"the PLC did not answer within {self.p.mode_timeout} s"
+        ack = answer[0]
+        if ack.status != P.OK:
+            msg = f"PLC refused {P.mode_name(mode)} in {P.mode_name(ack.mode)}: {P.STATUS_NAMES.get(ack.status)}"
+            rospy.logwarn(msg)
+            return False, msg
+        rospy.loginfo("PLC mode %s", P.mode_name(ack.mode))
+        return True, f"mode {P.mode_name(ack.mode)}"
+
+    def _srv_set_mode(self, req) -> SetModeResponse:
+        if req.mode not in P.MODE_NAMES:
+            return SetModeResponse(False, f"unknown mode {req.mode}; modes: {P.MODE_NAMES}", max(self.mode, 0))
+        ok, text = self._request_mode(req.mode)
+        return SetModeResponse(ok, text, max(self.mode, 0))
+
+    # ----------------------------------------------------------- diagnostics
+    def _diagnose(self, stat):
+        link, s = self.link, self.link.stats
+        if not link.connected:
+            stat.summary(DiagnosticStatus.ERROR, f"not connected: {link.last_error}")
+        elif any(self.mux.stale[src] and self.mux.accepts(self.mode, src) for src in self.mux.stale):
+            stat.summary(DiagnosticStatus.WARN, f"mode {P.mode_name(self.mode)}: setpoints stale, sending stops")
+        else:
+            stat.summary(DiagnosticStatus.OK, f"connected, mode {P.mode_name(self.mode)}")
+        p50, p99, p100 = link.rtt_percentiles(50, 99, 100)
+        for key, value in (("address", f"{link.host}:{link.port}"), ("mode", P.mode_name(self.mode)),
+                           ("faults", str(self.faults)), ("rtt p50 [ms]", f"{p50 * 1e3:.3f}"),
+                           ("rtt p99 [ms]", f"{p99 * 1e3:.3f}"), ("rtt max [ms]", f"{p100 * 1e3:.3f}"),
+                           ("rtt samples", str(len(link.rtts))), ("frames sent", str(s.frames_sent)),
+                           ("frames received", str(s.frames_received)), ("lost frames", str(s.lost_frames)),
+                           ("bad frames", str(link.decoder.stats.bad_frames)),
+                           ("bad frames by reason", str(link.decoder.stats.errors)),
+                           ("setpoints rejected by the PLC", str(self.rejected)),
+                           ("bad setpoint messages dropped", str(self.bad_input)),
+                           ("frames never acknowledged", str(s.unanswered)),
+                           ("connects", str(s.connects)), ("disconnects", str(s.disconnects))):
+            stat.add(key, value)
+        return stat
+
+
+def main() -> None:
+    # The link's I/O thread must get the GIL as soon as a frame arrives, not after the
+    # default 5 ms switch interval of whichever rospy thread holds it.
+    sys.setswitchinterval(2e-4)
+    rospy.init_node("plc_client")
+    PlcClientNode()
+    rospy.spin()
