@@ -13,7 +13,8 @@ from typing import Any, Dict, NoReturn, Tuple, Type, TypeVar
 
 import rospy
 
-from ..config import ConfigError, from_mapping
+from ..config import ConfigError, from_mapping, replace_nested
+from ..site import SiteParams, default_site_file, load_site
 from ..vehicle import VehicleParams, default_vehicle_file, load_vehicle
 
 T = TypeVar("T")
@@ -59,3 +60,41 @@ def vehicle_params() -> VehicleParams:
         return load_vehicle()
     except ConfigError as exc:
         fatal(f"bad vehicle parameter: {exc}")
+
+
+def site_params() -> SiteParams:
+    """Site parameters (datum, magnetic field) from ``/site`` (or the package's site.yaml)."""
+    try:
+        if rospy.has_param("/site"):
+            return from_mapping(SiteParams, rospy.get_param("/site"), "/site")
+        rospy.loginfo("no /site parameters on the server: loading %s", default_site_file())
+        return load_site()
+    except ConfigError as exc:
+        fatal(f"bad site parameter: {exc}")
+
+
+def with_scenario(params: T, section: str) -> T:
+    """``params`` with the running scenario's overrides for ``section`` applied.
+
+    A scenario file is loaded into ``/scenario`` by the launch files; its
+    ``/scenario/<section>`` (e.g. ``sensors/gps``) overrides keys of this node's
+    parameters, with the same validation as the node's own parameters.
+    """
+    key = "/scenario/" + section.strip("/")
+    if not rospy.has_param(key):
+        return params
+    try:
+        return replace_nested(params, rospy.get_param(key), key)
+    except ConfigError as exc:
+        fatal(f"bad scenario parameter: {exc}")
+
+
+def run_seed() -> int:
+    """The run's seed: ``/run/seed`` (launch argument) or the scenario's ``/scenario/seed``, else 0."""
+    for key in ("/run/seed", "/scenario/seed"):
+        if rospy.has_param(key):
+            value = rospy.get_param(key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                fatal(f"bad parameter: {key} = {value!r} must be a non-negative integer")
+            return value
+    return 0
