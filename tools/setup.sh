@@ -14,7 +14,7 @@ WS="$ROOT/.ws"
 STAMPS="$ROOT/.setup"
 SYS_PYTHON=/usr/bin/python3
 # Every catkin package of the repository: the root package plus its children.
-PACKAGES=(quadrivio quadrivio_description quadrivio_plc quadrivio_sim quadrivio_localization quadrivio_navigation)
+PACKAGES=(quadrivio quadrivio_description quadrivio_plc quadrivio_drivers quadrivio_sim quadrivio_localization quadrivio_navigation)
 
 step() { printf '\n[setup %s] %s\n' "$(date +%H:%M:%S)" "$*"; }
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }

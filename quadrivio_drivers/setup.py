@@ -1,0 +1,5 @@
+# Installs the pure-Python core of the package (src/quadrivio_drivers); used by catkin_python_setup().
+from setuptools import setup
+from catkin_pkg.python_setup import generate_distutils_setup
+
+setup(**generate_distutils_setup(packages=["quadrivio_drivers", "quadrivio_drivers.ros"], package_dir={"": "src"}))

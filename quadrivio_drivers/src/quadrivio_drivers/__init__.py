@@ -1,0 +1,1 @@
+"""Drivers for the Quadrivio ATV's sensors (ROS-free cores)."""

@@ -1,0 +1,1 @@
+"""ROS wiring of quadrivio_drivers."""
