@@ -10,7 +10,7 @@ from quadrivio_description.vehicle import GRAVITY, load_vehicle
 from quadrivio_sim.actuators import load_actuators
 from quadrivio_sim.paths import package_file
 from quadrivio_sim.script import ScriptRow, SetpointScript
-from quadrivio_sim.sensors import earth_field_enu
+from quadrivio_description.site import load_site
 from quadrivio_sim.simulator import SimParams, Simulator, steps_per_period
 from quadrivio_sim.world import Obstacle, quat_to_matrix, quat_to_rpy
 
@@ -55,7 +55,7 @@ def test_rest_on_flat_ground(vehicle, actuators):
     assert imu.specific_force == pytest.approx((0.0, 0.0, GRAVITY), abs=0.05)
     assert imu.angular_rate == pytest.approx((0.0, 0.0, 0.0), abs=1e-3)
     mag = out["mag"][-1]
-    assert mag.field == pytest.approx(tuple(earth_field_enu(default_params().sensors.mag)), abs=5e-7)
+    assert mag.field == pytest.approx(load_site().magnetic_field.enu(), abs=5e-7)
     gps = out["gps"][-1]
     R = quat_to_matrix(gt.orientation)
     expected = np.asarray(gt.position) + R @ np.asarray(vehicle.sensors["gps_link"].xyz)

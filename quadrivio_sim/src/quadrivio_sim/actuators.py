@@ -14,14 +14,19 @@ Handlebar (position servo)::
 
 Speed (throttle/brake servos, torque at the wheels)::
 
-    u       = clip(PID(v_sp - v), -1, 1)
-    throttle_cmd = max(u, 0),  brake_cmd = max(b_sp, k_b * max(-u - d_b, 0))
+    r'      = clip((v_sp - r) / dt, -a_dec, a_acc),  r in [v - b, v + b]   setpoint ramp (0: no limit)
+    u       = clip(u_ff + PID(r - v), -1, 1),  u_ff = f_0 + f_1 |r| + f_a r'  (f_0 only while r != 0)
+    throttle_cmd = max(u, 0) (1 - b_sp),  brake_cmd = max(b_sp, k_b * max(-u - d_b, 0))
     throttle' = (throttle_cmd - throttle) / tau_t,  brake' = (brake_cmd - brake) / tau_b
     T_drive = gear * throttle * T_max  -  c_eb * (1 - throttle) * w_wheel     (engine braking)
     T_brake = brake * B_max                                                  (opposes rotation)
 
-The engine-braking term ``c_eb`` is what makes deceleration differ from acceleration
-when the throttle is suddenly closed (the mismatch of the paper's Fig. 4b).
+The feedforward ``u_ff`` is the PLC's throttle for a speed on flat ground (rolling
+resistance and engine braking: ``f_0 + f_1 |r|``) and for the ramp's acceleration
+(``f_a r'``, ideally ``m r_w / T_max``), so the PID only corrects small errors and its
+integral handles what is left (slopes, load) without winding up. The engine-braking term
+``c_eb`` is what makes deceleration differ from acceleration when the throttle is
+suddenly closed (the mismatch of the paper's Fig. 4b).
 """
 
 from __future__ import annotations
@@ -93,6 +98,14 @@ class HandlebarLoopParams:
 @dataclass(frozen=True)
 class SpeedLoopParams:
     pid: PidGains = param(doc="PID from speed error [m/s] to throttle (+) / brake (-) demand in [-1, 1]")
+    max_accel: float = param(0.0, lo=0.0, hi=50.0, unit="m/s^2", doc="setpoint ramp when speeding up (0: none)")
+    max_decel: float = param(0.0, lo=0.0, hi=50.0, unit="m/s^2", doc="setpoint ramp when slowing down (0: none)")
+    ramp_band: float = param(0.0, lo=0.0, hi=50.0, unit="m/s",
+                             doc="the ramp stays within this of the measured speed (0: no band)")
+    feedforward_offset: float = param(0.0, lo=0.0, hi=1.0, doc="throttle to keep rolling at any speed (f_0)")
+    feedforward_gain: float = param(0.0, lo=0.0, hi=1.0, unit="s/m", doc="extra throttle per m/s of setpoint (f_1)")
+    feedforward_accel: float = param(0.0, lo=0.0, hi=10.0, unit="s^2/m",
+                                     doc="throttle per m/s^2 of setpoint ramp (f_a = m r / T_max)")
     throttle_tau: float = param(0.15, lo=0.0, hi=5.0, unit="s", doc="throttle servo time constant")
     brake_tau: float = param(0.10, lo=0.0, hi=5.0, unit="s", doc="brake servo time constant")
     brake_gain: float = param(1.0, lo=0.0, hi=10.0, doc="brake per unit of negative PID demand")
@@ -183,27 +196,48 @@ class SpeedLoop:
         self.throttle = 0.0  # [1]
         self.brake = 0.0  # [1]
         self.gear = 1  # +1 forward, -1 reverse (engaged by the sign of the setpoint)
+        self.ramp = 0.0  # [m/s] ramped setpoint
 
     def reset(self) -> None:
         self.pid.reset()
         self.delay = _DelayLine(self.delay.n)
         self.throttle = self.brake = 0.0
         self.gear = 1
+        self.ramp = 0.0
+
+    def _ramp(self, sp: float, speed: float) -> Tuple[float, float]:
+        """Move the ramped setpoint toward ``sp`` at most at the acceleration limits and
+        within ``ramp_band`` of the measured speed (the ramp waits for a vehicle that cannot
+        follow it, e.g. while the parking brake releases); returns it and its rate [m/s^2]."""
+        if self.p.ramp_band > 0.0:
+            self.ramp = clamp(self.ramp, speed - self.p.ramp_band, speed + self.p.ramp_band)
+        d = sp - self.ramp
+        speeding_up = abs(sp) > abs(self.ramp) and sp * self.ramp >= 0.0
+        limit = self.p.max_accel if speeding_up else self.p.max_decel
+        if limit > 0.0:
+            d = clamp(d, -limit * self.dt, limit * self.dt)
+        self.ramp += d
+        return self.ramp, d / self.dt
 
     def step(self, speed_sp: float, brake_sp: float, speed: float, wheel_rate: float) -> Tuple[float, float]:
         """One PLC cycle. ``speed`` [m/s] and ``wheel_rate`` [rad/s] are the measured rear wheel
         speed and angular rate. Returns ``(drive_torque, brake_torque)`` [N m], totals over the
         driven wheels and over all wheels respectively; the brake torque opposes rotation."""
-        sp = self.delay.push(speed_sp)
+        target = self.delay.push(speed_sp)
+        sp, rate = self._ramp(target, speed)
         if sp > 1e-3:
             self.gear = 1
         elif sp < -1e-3:
             self.gear = -1
         # The loop works on the speed in the direction of travel of the engaged gear.
-        u = self.pid.update(self.gear * sp, self.gear * speed, self.dt)
-        throttle_cmd = max(u, 0.0)
+        ff = self.p.feedforward_offset + self.p.feedforward_gain * abs(sp) if abs(sp) > 1e-3 else 0.0
+        if self.p.max_accel > 0.0 or self.p.max_decel > 0.0:  # a ramp: its acceleration is known
+            ff += self.p.feedforward_accel * self.gear * rate
+        self.pid.lo, self.pid.hi = -1.0 - ff, 1.0 - ff  # saturation (and anti-windup) on the total
+        u = ff + self.pid.update(self.gear * sp, self.gear * speed, self.dt)
+        throttle_cmd = max(u, 0.0) * (1.0 - clamp(brake_sp, 0.0, 1.0))  # a brake demand closes the throttle
         brake_cmd = max(brake_sp, self.p.brake_gain * max(-u - self.p.brake_deadband, 0.0))
-        if abs(sp) <= 1e-3 and abs(speed) < 0.05:  # standing still with a zero setpoint: hold the brake
+        if abs(target) <= 1e-3 and abs(sp) <= 1e-3 and abs(speed) < 0.05:  # standing still: hold the brake
             throttle_cmd, brake_cmd = 0.0, max(brake_cmd, 0.3)
         self.throttle = first_order(self.throttle, clamp(throttle_cmd, 0.0, 1.0), self.p.throttle_tau, self.dt)
         self.brake = first_order(self.brake, clamp(brake_cmd, 0.0, 1.0), self.p.brake_tau, self.dt)

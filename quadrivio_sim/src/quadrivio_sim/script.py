@@ -4,7 +4,7 @@ A script drives the emulated PLC as the autonomous source, so that the same scri
 and seed give the same run (determinism tests), and recorded setpoints can be fed
 back into the simulator (``calibrate --replay``, the paper's section 3.2 procedure).
 
-File format: CSV with a header naming at least ``t`` and any of ``speed``
+File format: CSV (``#`` lines are comments) with a header naming at least ``t`` and any of ``speed``
 [m/s], ``handlebar`` [rad], ``brake`` [1] (missing columns are 0), or YAML with a
 ``setpoints`` list of ``{t, speed, handlebar, brake}``. Values are held (zero-order
 hold) from their time until the next row's.
@@ -74,7 +74,7 @@ def load_script(path: str) -> SetpointScript:
                 raise ConfigError(f"setpoint script {path}: entry {k} is malformed ({exc})") from exc
         return SetpointScript(rows, path)
     with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
+        reader = csv.DictReader(line for line in fh if not line.lstrip().startswith("#"))
         if reader.fieldnames is None or "t" not in reader.fieldnames:
             raise ConfigError(f"setpoint script {path}: the CSV header must name a 't' column")
         rows = []

@@ -8,9 +8,9 @@ publish. Every reading is taken in its sensor frame, found by name in the URDF.
 * IMU: specific force ``f = R^T (a - g)`` and angular rate ``w = R^T w_world`` in
   ``imu_link``; ``a`` is the mean acceleration over the sample interval,
   ``(v_k - v_{k-1}) / T``, as a real IMU's anti-aliasing filter would deliver it.
-* Magnetometer: Earth's field in ``mag_link``, ``m = R^T h`` with ``h`` in ENU from
-  declination ``D``, inclination ``I`` and intensity ``B``:
-  ``h = B (cos I sin D, cos I cos D, -sin I)``.
+* Magnetometer: Earth's field in ``mag_link``, ``m = R^T h`` with ``h`` in ENU from the
+  site's declination ``D``, inclination ``I`` and intensity ``B``:
+  ``h = B (cos I sin D, cos I cos D, -sin I)`` (:class:`quadrivio_description.site.MagneticField`).
 * Lasers: planar scans by ray casting against ground and obstacles.
 * Cameras: RGB images from PyBullet's software renderer (off by default).
 """
@@ -24,6 +24,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from quadrivio_description.config import param
+from quadrivio_description.site import MagneticField
 from quadrivio_description.vehicle import GRAVITY
 
 from .world import World, quat_to_matrix, quat_to_rows, rotate_inverse
@@ -32,14 +33,6 @@ from .world import World, quat_to_matrix, quat_to_rows, rotate_inverse
 @dataclass(frozen=True)
 class RateParams:
     rate: float = param(lo=0.01, hi=1000.0, unit="Hz", doc="sample rate")
-
-
-@dataclass(frozen=True)
-class MagFieldParams:
-    rate: float = param(50.0, lo=0.01, hi=1000.0, unit="Hz", doc="sample rate")
-    declination: float = param(0.0454, lo=-math.pi, hi=math.pi, unit="rad", doc="magnetic declination (Milan: +2.6 deg)")
-    inclination: float = param(1.0297, lo=-math.pi / 2, hi=math.pi / 2, unit="rad", doc="inclination (Milan: +59 deg)")
-    intensity: float = param(4.7e-5, lo=1e-6, hi=1e-3, unit="T", doc="total field intensity")
 
 
 @dataclass(frozen=True)
@@ -68,16 +61,9 @@ class CameraParams:
 class SensorsParams:
     gps: RateParams = param(RateParams(5.0))
     imu: RateParams = param(RateParams(100.0))
-    mag: MagFieldParams = param(MagFieldParams())
+    mag: RateParams = param(RateParams(50.0))
     lasers: LaserParams = param(LaserParams())
     cameras: CameraParams = param(CameraParams())
-
-
-def earth_field_enu(p: MagFieldParams) -> np.ndarray:
-    """Earth's magnetic field in ENU [T]: ``B (cos I sin D, cos I cos D, -sin I)``."""
-    ci = math.cos(p.inclination)
-    return p.intensity * np.array([ci * math.sin(p.declination), ci * math.cos(p.declination),
-                                   -math.sin(p.inclination)])
 
 
 @dataclass(frozen=True)
@@ -165,9 +151,9 @@ class ImuSensor:
 
 
 class MagSensor:
-    def __init__(self, world: World, p: MagFieldParams, frame: str = "mag_link") -> None:
+    def __init__(self, world: World, field: MagneticField, frame: str = "mag_link") -> None:
         self.world, self.frame = world, frame
-        self.h = earth_field_enu(p)
+        self.h = np.asarray(field.enu())
 
     def sample(self, t: float) -> MagSample:
         _, orn, _, _ = self.world.link_state(self.frame)

@@ -23,6 +23,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 import numpy as np
 
 from quadrivio_description.config import ConfigError, param
+from quadrivio_description.site import SiteParams, load_site
 from quadrivio_description.vehicle import VehicleParams
 from quadrivio_plc import protocol as P
 
@@ -77,7 +78,7 @@ def steps_per_period(rate: float, dt: float, key: str) -> int:
 
 class Simulator:
     def __init__(self, params: SimParams, vehicle: VehicleParams, actuators: ActuatorParams,
-                 urdf_text: str) -> None:
+                 urdf_text: str, site: Optional[SiteParams] = None) -> None:
         self.params = params
         self.vehicle = vehicle
         self.dt = params.physics.dt
@@ -91,7 +92,8 @@ class Simulator:
         self.cycle_steps = steps_per_period(1.0 / params.plc.cycle, dt, "plc.cycle")
         self.gps = GpsSensor(self.world)
         self.imu = ImuSensor(self.world, s.imu.rate)
-        self.mag = MagSensor(self.world, s.mag)
+        self.site = site or load_site()
+        self.mag = MagSensor(self.world, self.site.magnetic_field)
         self.lasers = [LaserSensor(self.world, s.lasers, f) for f in s.lasers.frames]
         self.cameras = [CameraSensor(self.world, s.cameras, f) for f in s.cameras.frames] if s.cameras.enabled else []
         # (name, period in steps, sampler)

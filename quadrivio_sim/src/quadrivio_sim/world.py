@@ -195,6 +195,7 @@ class World:
             # Bullet centres the heightfield on its height range: shift it back.
             pb.resetBasePositionAndOrientation(ground, [0.0, 0.0, 0.5 * (hf.z.min() + hf.z.max())], [0, 0, 0, 1])
         pb.changeDynamics(ground, -1, lateralFriction=self.terrain.friction, restitution=0.0)
+        pb.changeVisualShape(ground, -1, rgbaColor=[0.45, 0.42, 0.33, 1.0])  # dirt (camera images)
         return ground
 
     def _make_obstacle(self, pb, o: Obstacle) -> int:
@@ -205,6 +206,7 @@ class World:
         z0 = self.ground_height(*o.xy)
         body = pb.createMultiBody(0, shape, basePosition=[o.xy[0], o.xy[1], z0 + 0.5 * o.size[2]],
                                   baseOrientation=pb.getQuaternionFromEuler([0.0, 0.0, o.yaw]))
+        pb.changeVisualShape(body, -1, rgbaColor=[0.3, 0.5, 0.25, 1.0] if o.kind == "cylinder" else [0.6, 0.6, 0.6, 1.0])
         return body
 
     def _load_vehicle(self, urdf_text: str) -> int:

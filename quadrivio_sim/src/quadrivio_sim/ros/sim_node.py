@@ -26,6 +26,7 @@ Services: ``~pause``, ``~unpause``, ``~reset`` (std_srvs/Trigger), ``~step`` (qu
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import queue
 import signal
@@ -42,11 +43,12 @@ from diagnostic_updater import Updater
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import Image, Imu, JointState, LaserScan, MagneticField
+from sensor_msgs.msg import CameraInfo, Image, Imu, JointState, LaserScan, MagneticField
 from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param
-from quadrivio_description.ros.params import fatal, node_params, private_params, split_params, vehicle_params
+from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, site_params,
+                                             split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
 from quadrivio_plc.msg import Setpoint
 from quadrivio_plc import protocol as P
@@ -87,7 +89,9 @@ class SimNode:
         raw = private_params()
         node_raw, sim_raw = split_params(raw, NodeParams)
         self.np: NodeParams = node_params(NodeParams, node_raw)
-        self.sim_params: SimParams = node_params(SimParams, sim_raw)
+        self.sim_params: SimParams = with_scenario(node_params(SimParams, sim_raw), "sim")
+        if rospy.has_param("/run/seed") or rospy.has_param("/scenario/seed"):
+            self.sim_params = dataclasses.replace(self.sim_params, seed=run_seed())
         self.vehicle = vehicle_params()
         actuators_file = self.np.actuators_file or package_file("config", "actuators.yaml")
         try:
@@ -96,7 +100,7 @@ class SimNode:
             fatal(f"bad actuator file: {exc}")
         urdf = self._urdf_text()
         try:
-            self.sim = Simulator(self.sim_params, self.vehicle, actuators, urdf)
+            self.sim = Simulator(self.sim_params, self.vehicle, actuators, urdf, site_params())
         except ConfigError as exc:
             fatal(f"cannot build the simulation: {exc}")
         if self.np.script_file:
@@ -134,6 +138,9 @@ class SimNode:
                          for f in self.sim_params.sensors.lasers.frames}
         self.pub_image = {f: rospy.Publisher(f"sim/stereo/{f.replace('camera_', '')}/image_raw", Image, queue_size=2)
                           for f in self.sim_params.sensors.cameras.frames} if self.sim.cameras else {}
+        self.pub_info = {f: rospy.Publisher(f"sim/stereo/{f.replace('camera_', '')}/camera_info", CameraInfo,
+                                            queue_size=2) for f in self.pub_image}
+        self.baseline = self._stereo_baseline()
         self.tf = tf2_ros.TransformBroadcaster() if self.np.tf_mode != "none" else None
         self.gt_child = self.np.gt_frame if self.np.tf_mode == "ground_truth_frame" else self.np.base_frame
 
@@ -270,6 +277,9 @@ class SimNode:
             self.sim.plc.setpoint(P.SOURCE_AUTO, sp.speed, sp.handlebar, sp.brake)
         for name, sample in self.sim.step():
             self._publish(name, sample)
+            # Answer PLC frames between publications too, not only once per step: a
+            # frame arriving now waits one publication (~50 us), not the whole step.
+            self.server.poll(0.0)
         if self.sim.steps % self.np.clock_every == 0:
             self._publish_clock()
 
@@ -364,6 +374,13 @@ class SimNode:
         m.name, m.position, m.velocity = list(s.names), list(s.positions), list(s.velocities)
         self.pub_joints.publish(m)
 
+    def _stereo_baseline(self) -> float:
+        frames = self.sim_params.sensors.cameras.frames
+        if len(frames) != 2 or not all(f in self.sim.world.frames for f in frames):
+            return 0.0
+        (a, _), (b, _) = (self.sim.world.frames[f] for f in frames)
+        return float(sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5)
+
     def _pub_image(self, s: ImageSample) -> None:
         m = Image()
         m.header.stamp = _stamp(s.stamp)
@@ -371,6 +388,16 @@ class SimNode:
         m.height, m.width, m.encoding, m.step = s.height, s.width, "rgb8", 3 * s.width
         m.data = s.rgb
         self.pub_image[s.frame].publish(m)
+        info = CameraInfo()
+        info.header = m.header
+        info.height, info.width, info.distortion_model = s.height, s.width, "plumb_bob"
+        info.D = [0.0] * 5
+        info.K = [s.fx, 0.0, s.cx, 0.0, s.fy, s.cy, 0.0, 0.0, 1.0]
+        info.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        # The second camera of the pair is the right one: Tx = -fx * baseline (REP-104).
+        tx = -s.fx * self.baseline if s.frame == self.sim_params.sensors.cameras.frames[-1] else 0.0
+        info.P = [s.fx, 0.0, s.cx, tx, 0.0, s.fy, s.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        self.pub_info[s.frame].publish(info)
 
     # ----------------------------------------------------------- diagnostics
     def _diag_sim(self, stat):

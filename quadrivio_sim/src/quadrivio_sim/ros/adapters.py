@@ -1,0 +1,306 @@
+"""Layer-2 sensor adapters: simulator readings -> exactly what the real drivers publish.
+
+Each adapter is its own node (paper section 3.3: "a ROS node that reads the messages
+published by the simulator and converts them into a format which matches the one
+produced by sensors on the real vehicle"). It reads ``/sim/...``, adds the
+imperfections of :mod:`quadrivio_sim.noise` with its own seeded generator, stamps
+the message with the measurement time and delivers it after the sensor's latency.
+
+Common parameters (private, see ``config/<sensor>.yaml``): ``~frame_id``,
+``~latency/delay``, ``~latency/jitter`` [s], the sensor's noise block, and the run's seed
+(``/run/seed`` or ``/scenario/seed``); a scenario's ``/scenario/sensors/<sensor>``
+overrides any of them. Delivery happens on a sim-time timer of period
+``~release_period`` (default 1 ms: every /clock tick).
+
+Nodes: ``gps_adapter`` (/sim/gps -> gps/fix NavSatFix, gps/vel TwistStamped, optional
+NMEA on a pseudo-terminal or TCP), ``imu_adapter`` (/sim/imu -> imu/data Imu),
+``mag_adapter`` (/sim/mag -> imu/mag MagneticField), ``laser_adapter`` (scan_in ->
+scan LaserScan), ``camera_adapter`` (image_in, camera_info_in -> image_raw, camera_info).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import zlib
+from collections import deque
+from dataclasses import dataclass
+from typing import Callable, Deque, Tuple
+
+import numpy as np
+import rospy
+from geometry_msgs.msg import TwistStamped
+from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
+
+from quadrivio_description.config import param
+from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
+from quadrivio_sim.msg import RawGps
+
+from ..nmea_out import NmeaEncoder, open_output
+from ..noise import (GpsNoise, GpsNoiseParams, ImuNoise, ImuNoiseParams, LaserNoise, LaserNoiseParams, Latency,
+                     LatencyParams, MagNoise, MagNoiseParams, NO_FIX)
+
+
+def node_rng(seed: int) -> np.random.Generator:
+    """This node's generator: the run's seed and a stream id from the node's name."""
+    return np.random.default_rng([seed, zlib.crc32(rospy.get_name().encode())])
+
+
+class DelayedOutput:
+    """Runs publish actions at their delivery time in sim time; never reorders them."""
+
+    def __init__(self, latency: Latency, release_period: float) -> None:
+        self.latency = latency
+        self.queue: Deque[Tuple[float, Callable[[], None]]] = deque()
+        self.lock = threading.Lock()
+        self.delivered = 0
+        if not latency.zero:
+            rospy.Timer(rospy.Duration(release_period), self._drain)
+
+    def push(self, stamp: float, action: Callable[[], None]) -> None:
+        if self.latency.zero:
+            action()
+            self.delivered += 1
+            return
+        with self.lock:
+            self.queue.append((self.latency.deliver_at(stamp), action))
+        self._drain(None)
+
+    def _drain(self, _event) -> None:
+        now = rospy.get_time()
+        while True:
+            with self.lock:
+                if not self.queue or self.queue[0][0] > now + 1e-9:
+                    return
+                _, action = self.queue.popleft()
+            action()
+            self.delivered += 1
+
+
+def _stamp(t: float) -> rospy.Time:
+    return rospy.Time.from_sec(t)
+
+
+# ------------------------------------------------------------------------ GPS
+
+
+@dataclass(frozen=True)
+class NmeaParams:
+    output: str = param("", doc="'pty:/path' (pseudo-terminal linked at path), 'tcp:[host:]port', or '' (none)")
+    geoid_separation: float = param(47.0, lo=-200.0, hi=200.0, unit="m",
+                                    doc="ellipsoid minus mean-sea-level height reported in GGA")
+    talker: str = param("GP", choices=("GP", "GN", "GL"), doc="NMEA talker id")
+
+
+@dataclass(frozen=True)
+class GpsAdapterParams:
+    frame_id: str = param("gps_link")
+    publish_fix: bool = param(True, doc="publish gps/fix directly (the NMEA output can feed the real driver instead)")
+    latency: LatencyParams = param(LatencyParams(0.08, 0.015))
+    noise: GpsNoiseParams = param(GpsNoiseParams())
+    nmea: NmeaParams = param(NmeaParams())
+    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
+
+
+class GpsAdapter:
+    def __init__(self) -> None:
+        self.p = with_scenario(node_params(GpsAdapterParams), "sensors/gps")
+        site = site_params()
+        rng = node_rng(run_seed())
+        self.noise = GpsNoise(self.p.noise, rng)
+        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.frame = site.local_frame()
+        self.encoder = NmeaEncoder(self.frame, site.utc_epoch, self.p.nmea.geoid_separation, self.p.nmea.talker)
+        try:
+            self.nmea = open_output(self.p.nmea.output)
+        except (OSError, ValueError) as exc:
+            fatal(f"bad parameter ~nmea/output = {self.p.nmea.output!r}: {exc}")
+        if self.nmea is not None:
+            rospy.loginfo("NMEA output on %s", self.nmea.address)
+            rospy.on_shutdown(self.nmea.close)
+        self.pub_fix = rospy.Publisher("gps/fix", NavSatFix, queue_size=10) if self.p.publish_fix else None
+        self.pub_vel = rospy.Publisher("gps/vel", TwistStamped, queue_size=10) if self.p.publish_fix else None
+        rospy.Subscriber("/sim/gps", RawGps, self._on_raw, queue_size=100)
+
+    def _on_raw(self, m: RawGps) -> None:
+        t = m.header.stamp.to_sec()
+        r = self.noise.apply(t, (m.position.x, m.position.y, m.position.z), (m.velocity.x, m.velocity.y, m.velocity.z))
+        fix = NavSatFix()
+        fix.header.stamp = m.header.stamp
+        fix.header.frame_id = self.p.frame_id
+        fix.status.status = r.status
+        fix.status.service = NavSatStatus.SERVICE_GPS
+        if r.position is None:
+            fix.latitude = fix.longitude = fix.altitude = math.nan
+            fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_UNKNOWN
+        else:
+            fix.latitude, fix.longitude, fix.altitude = self.frame.enu_to_lla(*r.position)
+            fix.position_covariance = [r.variances[0], 0.0, 0.0, 0.0, r.variances[1], 0.0, 0.0, 0.0, r.variances[2]]
+            fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+        vel = TwistStamped()
+        vel.header = fix.header
+        vel.twist.linear.x, vel.twist.linear.y = r.velocity[0], r.velocity[1]
+        lines = self.encoder.encode(r) if self.nmea is not None else []
+
+        def deliver() -> None:
+            if self.pub_fix is not None:
+                self.pub_fix.publish(fix)
+                if r.status != NO_FIX:
+                    self.pub_vel.publish(vel)
+            for line in lines:
+                self.nmea.write(line + "\r\n")
+        self.out.push(t, deliver)
+
+
+# ------------------------------------------------------------------------ IMU
+
+
+@dataclass(frozen=True)
+class ImuAdapterParams:
+    frame_id: str = param("imu_link")
+    rate: float = param(100.0, lo=1.0, hi=10000.0, unit="Hz", doc="sample rate (for the noise discretisation)")
+    latency: LatencyParams = param(LatencyParams(0.004, 0.001))
+    noise: ImuNoiseParams = param(ImuNoiseParams())
+    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
+
+
+class ImuAdapter:
+    def __init__(self) -> None:
+        self.p = with_scenario(node_params(ImuAdapterParams), "sensors/imu")
+        rng = node_rng(run_seed())
+        self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
+        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.pub = rospy.Publisher("imu/data", Imu, queue_size=100)
+        rospy.Subscriber("/sim/imu", Imu, self._on_raw, queue_size=200)
+
+    def _on_raw(self, m: Imu) -> None:
+        a, w = m.linear_acceleration, m.angular_velocity
+        f, g = self.noise.apply((a.x, a.y, a.z), (w.x, w.y, w.z))
+        out = Imu()
+        out.header.stamp = m.header.stamp
+        out.header.frame_id = self.p.frame_id
+        out.orientation_covariance[0] = -1.0  # a raw IMU: no orientation estimate (REP-145)
+        out.angular_velocity.x, out.angular_velocity.y, out.angular_velocity.z = g
+        out.linear_acceleration.x, out.linear_acceleration.y, out.linear_acceleration.z = f
+        gv, av = self.noise.gyro_variance, self.noise.accel_variance
+        out.angular_velocity_covariance = [gv, 0.0, 0.0, 0.0, gv, 0.0, 0.0, 0.0, gv]
+        out.linear_acceleration_covariance = [av, 0.0, 0.0, 0.0, av, 0.0, 0.0, 0.0, av]
+        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+
+
+# --------------------------------------------------------------- magnetometer
+
+
+@dataclass(frozen=True)
+class MagAdapterParams:
+    frame_id: str = param("mag_link")
+    latency: LatencyParams = param(LatencyParams(0.01, 0.002))
+    noise: MagNoiseParams = param(MagNoiseParams())
+    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
+
+
+class MagAdapter:
+    def __init__(self) -> None:
+        self.p = with_scenario(node_params(MagAdapterParams), "sensors/mag")
+        rng = node_rng(run_seed())
+        self.noise = MagNoise(self.p.noise, rng)
+        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.pub = rospy.Publisher("imu/mag", MagneticField, queue_size=50)
+        rospy.Subscriber("/sim/mag", MagneticField, self._on_raw, queue_size=100)
+
+    def _on_raw(self, m: MagneticField) -> None:
+        h = m.magnetic_field
+        x, y, z = self.noise.apply((h.x, h.y, h.z))
+        out = MagneticField()
+        out.header.stamp = m.header.stamp
+        out.header.frame_id = self.p.frame_id
+        out.magnetic_field.x, out.magnetic_field.y, out.magnetic_field.z = x, y, z
+        v = self.p.noise.noise_std ** 2
+        out.magnetic_field_covariance = [v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v]
+        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+
+
+# --------------------------------------------------------------------- lasers
+
+
+@dataclass(frozen=True)
+class LaserAdapterParams:
+    frame_id: str = param("laser_front")
+    latency: LatencyParams = param(LatencyParams(0.03, 0.005))
+    noise: LaserNoiseParams = param(LaserNoiseParams())
+    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
+
+
+class LaserAdapter:
+    def __init__(self) -> None:
+        name = rospy.get_name().rsplit("/", 1)[-1]
+        self.p = with_scenario(node_params(LaserAdapterParams), f"sensors/{name}")
+        rng = node_rng(run_seed())
+        self.noise = LaserNoise(self.p.noise, rng)
+        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.pub = rospy.Publisher("scan", LaserScan, queue_size=10)
+        rospy.Subscriber("scan_in", LaserScan, self._on_raw, queue_size=20)
+
+    def _on_raw(self, m: LaserScan) -> None:
+        out = LaserScan()
+        out.header.stamp = m.header.stamp
+        out.header.frame_id = self.p.frame_id
+        out.angle_min, out.angle_max, out.angle_increment = m.angle_min, m.angle_max, m.angle_increment
+        out.time_increment, out.scan_time = m.time_increment, m.scan_time
+        out.range_min, out.range_max = m.range_min, m.range_max
+        out.ranges = self.noise.apply(m.ranges, m.range_min, m.range_max)
+        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+
+
+# -------------------------------------------------------------------- cameras
+
+
+@dataclass(frozen=True)
+class CameraAdapterParams:
+    frame_id: str = param("camera_left")
+    latency: LatencyParams = param(LatencyParams(0.05, 0.01))
+    pixel_noise_std: float = param(2.0, lo=0.0, hi=100.0, doc="Gaussian noise on each 8-bit channel")
+    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
+
+
+class CameraAdapter:
+    def __init__(self) -> None:
+        name = rospy.get_name().rsplit("/", 1)[-1]
+        self.p = with_scenario(node_params(CameraAdapterParams), f"sensors/{name}")
+        self.rng = node_rng(run_seed())
+        self.out = DelayedOutput(Latency(self.p.latency, self.rng), self.p.release_period)
+        self.info = None
+        self.pub_image = rospy.Publisher("image_raw", Image, queue_size=2)
+        self.pub_info = rospy.Publisher("camera_info", CameraInfo, queue_size=2)
+        rospy.Subscriber("camera_info_in", CameraInfo, self._on_info, queue_size=2)
+        rospy.Subscriber("image_in", Image, self._on_image, queue_size=2)
+
+    def _on_info(self, m: CameraInfo) -> None:
+        self.info = m
+
+    def _on_image(self, m: Image) -> None:
+        pixels = np.frombuffer(m.data, dtype=np.uint8).astype(np.float32)
+        pixels += self.rng.normal(0.0, self.p.pixel_noise_std, pixels.shape).astype(np.float32)
+        out = Image()
+        out.header.stamp = m.header.stamp
+        out.header.frame_id = self.p.frame_id
+        out.height, out.width, out.encoding, out.step, out.is_bigendian = m.height, m.width, m.encoding, m.step, 0
+        out.data = np.clip(pixels, 0, 255).astype(np.uint8).tobytes()
+        info = self.info
+
+        def deliver() -> None:
+            self.pub_image.publish(out)
+            if info is not None:
+                info.header = out.header
+                self.pub_info.publish(info)
+        self.out.push(m.header.stamp.to_sec(), deliver)
+
+
+ADAPTERS = {"gps_adapter": GpsAdapter, "imu_adapter": ImuAdapter, "mag_adapter": MagAdapter,
+            "laser_adapter": LaserAdapter, "camera_adapter": CameraAdapter}
+
+
+def main(kind: str) -> None:
+    rospy.init_node(kind)
+    ADAPTERS[kind]()
+    rospy.spin()
