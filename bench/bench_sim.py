@@ -11,7 +11,6 @@ Two figures:
 
 Writes bench/results/sim.json.
 """
-import math
 import os
 import sys
 import time
@@ -21,7 +20,7 @@ from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_sim.actuators import load_actuators
 from quadrivio_sim.paths import package_file
-from quadrivio_sim.script import ScriptRow, SetpointScript
+from quadrivio_sim.script import load_script
 from quadrivio_sim.simulator import SimParams, Simulator
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -31,18 +30,14 @@ from common import machine, node_cpu_seconds, ros_session, write_result  # noqa:
 SIM_SECONDS = 120.0
 
 
-def slalom():
-    rows = [ScriptRow(0.0, 3.0, 0.0, 0.0)]
-    for k in range(1, 60):
-        rows.append(ScriptRow(2.0 * k, 3.0, 0.25 * math.sin(0.7 * k), 0.0))
-    return SetpointScript(rows, "slalom")
+SCRIPT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "data", "slalom.csv")
 
 
 def bench_core():
     vehicle = load_vehicle()
     params = from_mapping(SimParams, load_yaml(package_file("config", "sim.yaml")), "sim.yaml")
     sim = Simulator(params, vehicle, load_actuators(package_file("config", "actuators.yaml")), build_urdf(vehicle))
-    sim.script = slalom()
+    sim.script = load_script(SCRIPT)
     while sim.t < 2.0:
         sim.step()
     w0, c0, t0 = time.perf_counter(), time.process_time(), sim.t
@@ -57,18 +52,13 @@ def bench_core():
 
 
 def bench_node():
-    script = os.path.join(HERE, "data", "slalom.csv")
-    os.makedirs(os.path.dirname(script), exist_ok=True)
-    with open(script, "w") as fh:
-        fh.write("t,speed,handlebar,brake\n")
-        for r in slalom().rows:
-            fh.write(f"{r.t},{r.speed},{r.handlebar},{r.brake}\n")
+    script = SCRIPT
     with ros_session() as ros:
         ros.launch("quadrivio_sim", "bench_simulator.launch", f"script_file:={script}", "rtf:=0")
         import rospy
         from rosgraph_msgs.msg import Clock
 
-        rospy.init_node("bench_sim", anonymous=True, disable_signals=True)
+        ros.init_node("bench_sim")
         stamps = []
         sub = rospy.Subscriber("/clock", Clock, lambda m: stamps.append((time.perf_counter(), m.clock.to_sec())),
                                queue_size=100000)

@@ -69,6 +69,20 @@ class RosSession:
         tag = os.path.splitext(os.path.basename(launch_file))[0]
         self.procs.append(self._spawn(["roslaunch", "--wait", pkg, launch_file, *args], tag))
 
+    def init_node(self, name: str, timeout: float = 120.0):
+        """Start this process's rospy node once the simulator publishes /clock.
+
+        rospy reads /use_sim_time once, in init_node: before roslaunch has set it the
+        node would run on wall time.
+        """
+        import rosgraph
+        import rospy
+
+        master = rosgraph.Master("/bench")
+        wait_for(lambda: any(t == "/clock" for t, _ in master.getSystemState()[0]) and
+                 master.hasParam("/use_sim_time"), timeout, "the simulator's /clock")
+        rospy.init_node(name, anonymous=True, disable_signals=True)
+
     def close(self):
         for p in reversed(self.procs):
             if p.poll() is None:
