@@ -271,6 +271,7 @@ class LowLevelControl:
         self.handlebar = HandlebarLoop(params.handlebar, vehicle, cycle)
         self.speed = SpeedLoop(params.speed, vehicle, cycle)
         self.out = Actuation()
+        self.speed_measured = 0.0  # [m/s] wheel speed the loops last acted on
 
     def reset(self) -> None:
         self.handlebar.reset()
@@ -288,6 +289,7 @@ class LowLevelControl:
              wheel_speed: float, wheel_rate: float) -> Actuation:
         """One cycle. ``handlebar_sp = None`` disables the handlebar servo (it holds its angle)."""
         h = self.handlebar.angle if handlebar_sp is None else self.handlebar.step(handlebar_sp)
+        self.speed_measured = wheel_speed
         drive, brake_torque = self.speed.step(speed_sp, brake_sp, wheel_speed, wheel_rate)
         self.out = Actuation(h, drive, brake_torque, self.speed.throttle, self.speed.brake)
         return self.out
