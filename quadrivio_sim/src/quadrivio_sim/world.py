@@ -270,12 +270,22 @@ class World:
 
     # ------------------------------------------------------------------ control
     def reset(self, spawn: Optional[Pose2D] = None) -> None:
-        """Put the vehicle at rest at ``spawn`` (default: the initial spawn) on the ground."""
+        """Put the vehicle at rest at ``spawn`` (default: the initial spawn) on the ground,
+        its attitude following the terrain: with the ground's slope ``s_x`` along the
+        heading and ``s_y`` to the left, ``pitch = -atan(s_x)`` (nose up uphill, REP-103)
+        and ``roll = atan(s_y)``."""
         spawn = spawn or self.spawn
         pb = self.pb
-        z = self.ground_height(spawn.x, spawn.y) + self.v.wheel_radius
-        q = pb.getQuaternionFromEuler([0.0, 0.0, spawn.yaw])
-        self.set_base_link_pose((spawn.x, spawn.y, z + 0.02), q)
+        x, y = spawn.x, spawn.y
+        gx, gy = (0.0, 0.0) if self.heightfield is None else self.heightfield.gradient(x, y)
+        c, s_ = math.cos(spawn.yaw), math.sin(spawn.yaw)
+        pitch = -math.atan(gx * c + gy * s_)
+        roll = math.atan(-gx * s_ + gy * c)
+        q = pb.getQuaternionFromEuler([roll, pitch, spawn.yaw])
+        # base_link sits a wheel radius above the ground along the ground's normal.
+        normal = np.array([-gx, -gy, 1.0]) / math.sqrt(gx * gx + gy * gy + 1.0)
+        pos = np.array([x, y, self.ground_height(x, y)]) + (self.v.wheel_radius + 0.02) * normal
+        self.set_base_link_pose(tuple(pos.tolist()), q)
         pb.resetBaseVelocity(self.robot, [0, 0, 0], [0, 0, 0])
         for j in self.movable:
             pb.resetJointState(self.robot, j, 0.0, 0.0)
@@ -393,6 +403,10 @@ class World:
         wx, wy, wz = w
         v_s = (v[0] + wy * rz - wz * ry, v[1] + wz * rx - wx * rz, v[2] + wx * ry - wy * rx)
         return p_s, o_s, v_s, w
+
+    def wheel_contacts(self) -> List[bool]:
+        """Whether each wheel (front left, front right, rear left, rear right) touches the ground."""
+        return [bool(self.pb.getContactPoints(self.robot, self.ground, linkIndexA=j)) for j in self.wheels]
 
     def ground_height(self, x: float, y: float) -> float:
         return 0.0 if self.heightfield is None else self.heightfield.height(x, y)

@@ -1,0 +1,148 @@
+"""Terrain: DEM images and procedural ground load, and the vehicle behaves plausibly on them."""
+import math
+
+import matplotlib
+import numpy as np
+import pytest
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from quadrivio_description.config import ConfigError, from_mapping, load_yaml  # noqa: E402
+from quadrivio_description.urdf import build_urdf  # noqa: E402
+from quadrivio_description.vehicle import load_vehicle  # noqa: E402
+from quadrivio_sim.actuators import load_actuators  # noqa: E402
+from quadrivio_sim.paths import package_file  # noqa: E402
+from quadrivio_sim.script import ScriptRow, SetpointScript  # noqa: E402
+from quadrivio_sim.simulator import SimParams, Simulator  # noqa: E402
+from quadrivio_sim.terrain import TerrainParams, build_heightfield, read_dem  # noqa: E402
+from quadrivio_sim.world import quat_to_rpy  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle()
+
+
+def make_sim(vehicle, **changes):
+    data = load_yaml(package_file("config", "sim.yaml"))
+    data.update(changes)
+    return Simulator(from_mapping(SimParams, data, "test"), vehicle, load_actuators(package_file("config", "actuators.yaml")),
+                     build_urdf(vehicle))
+
+
+def write_pgm(path, img):
+    h, w = img.shape
+    with open(path, "wb") as fh:
+        fh.write(f"P5\n# test DEM\n{w} {h}\n255\n".encode())
+        fh.write(img.astype(np.uint8).tobytes())
+
+
+def ramp_image(n=41):
+    # Row 0 is the image's top edge: north. Brightness grows eastwards (with x).
+    return np.tile(np.linspace(0, 255, n), (n, 1))
+
+
+@pytest.mark.parametrize("ext", ["pgm", "png"])
+def test_dem_image_heights(tmp_path, ext):
+    img = ramp_image()
+    img[0, :] = 255  # a bright northern edge row: must end up at the top (largest y)
+    path = str(tmp_path / f"dem.{ext}")
+    if ext == "pgm":
+        write_pgm(path, img)
+    else:
+        plt.imsave(path, img, cmap="gray", vmin=0, vmax=255)
+    hf = build_heightfield(TerrainParams(kind="image", image=path, resolution=0.5, height_range=4.0), None)
+    assert hf.shape == (41, 41)
+    assert hf.height(-10.0, 0.0) == pytest.approx(0.0, abs=0.05)  # west edge: black
+    assert hf.height(10.0, 0.0) == pytest.approx(4.0, abs=0.05)  # east edge: white
+    assert hf.height(0.0, 0.0) == pytest.approx(2.0, abs=0.05)
+    assert hf.height(-10.0, 10.0) == pytest.approx(4.0, abs=0.05)  # north edge row
+    assert hf.gradient(0.0, 0.0)[0] == pytest.approx(4.0 / 20.0, abs=0.015)  # 8-bit steps of the ramp
+
+
+def test_dem_errors(tmp_path):
+    with pytest.raises(ConfigError, match="nope.png: file not found"):
+        read_dem(str(tmp_path / "nope.png"))
+    bad = tmp_path / "bad.pgm"
+    bad.write_bytes(b"P2\n2 2\n255\n0 0 0 0\n")
+    with pytest.raises(ConfigError, match="bad.pgm: cannot read"):
+        read_dem(str(bad))
+
+
+def test_vehicle_spawns_on_a_dem(vehicle, tmp_path):
+    path = str(tmp_path / "dem.pgm")
+    write_pgm(path, ramp_image())
+    sim = make_sim(vehicle, terrain={"kind": "image", "image": path, "resolution": 0.5, "height_range": 2.0},
+                   spawn={"x": 2.0, "y": 1.0, "yaw": 0.0})
+    while sim.t < 2.0:
+        sim.step()
+    pos, orn, _, _ = sim.world.base_state()
+    assert pos[2] - sim.world.ground_height(pos[0], pos[1]) == pytest.approx(vehicle.wheel_radius, abs=0.05)
+    assert quat_to_rpy(orn)[1] == pytest.approx(-math.atan(0.1), abs=0.02)  # 2 m over 20 m: nose up
+    assert all(sim.world.wheel_contacts())
+
+
+def test_procedural_roughness_rms():
+    p = TerrainParams(kind="procedural", size=100.0, resolution=0.5, roughness=0.07, flat_radius=0.0)
+    hf = build_heightfield(p, np.random.default_rng(3))
+    assert hf.z.std() == pytest.approx(0.07, rel=0.02)
+    same = build_heightfield(p, np.random.default_rng(3))
+    assert np.array_equal(hf.z, same.z)
+
+
+def test_rough_ground_drive_is_plausible(vehicle):
+    terrain = {"kind": "procedural", "size": 120.0, "roughness": 0.05, "wavelength": 3.0, "flat_radius": 3.0}
+    sim = make_sim(vehicle, terrain=terrain, seed=11)
+    sim.script = SetpointScript([ScriptRow(0.0, 2.0, 0.0, 0.0)])
+    susp, contacts, rp = [], [], []
+    start = None
+    while sim.t < 25.0:
+        for name, s in sim.step():
+            if name == "ground_truth":
+                if start is None and s.stamp >= 5.0:
+                    start = s.position
+                rp.append(quat_to_rpy(s.orientation)[:2])
+        if sim.steps % 5 == 0 and sim.t > 5.0:
+            susp.append(sim.world.suspension_positions)
+            contacts.append(sim.world.wheel_contacts())
+    end = sim.world.base_state()[0]
+    travelled = math.hypot(end[0] - start[0], end[1] - start[1])
+    assert travelled == pytest.approx(2.0 * 20.0, rel=0.15)  # keeps its speed over the bumps
+    assert np.all(np.isfinite(susp))
+    assert np.max(np.abs(rp)) < 0.25  # no wild attitude
+    assert np.mean(contacts) > 0.9  # wheels stay on the ground
+    q = np.array(susp)
+    assert q.std(axis=0).min() > 0.003  # the suspension works
+    at_stop = (q >= [0.10, 0.10, 0.12, 0.12]) | (q <= [-0.08, -0.08, -0.10, -0.10])
+    assert at_stop.mean() < 0.05  # and rarely hits its stops
+
+
+def test_side_slope_spawn_follows_terrain(vehicle):
+    terrain = {"kind": "procedural", "size": 60.0, "roughness": 0.0, "slope": [0.0, 0.3], "flat_radius": 0.0}
+    sim = make_sim(vehicle, terrain=terrain)
+    while sim.t < 2.0:
+        sim.step()
+    roll, pitch, _ = quat_to_rpy(sim.world.base_state()[1])
+    # Left side up on a slope rising to the left, plus the body's roll on its springs: the
+    # suspension acts vertically at the wheels, so the roll axis is on the ground and
+    # body roll = m_s g h sin(phi) / K_roll with K_roll = (k_f t_f^2 + k_r t_r^2) / 2.
+    phi = math.atan(0.3)
+    k_roll = 0.5 * (vehicle.suspension.front.stiffness * vehicle.front_track ** 2 +
+                    vehicle.suspension.rear.stiffness * vehicle.rear_track ** 2)
+    body_roll = vehicle.chassis_mass * 9.81 * vehicle.body.com_height * math.sin(phi) / k_roll
+    assert roll == pytest.approx(phi + body_roll, abs=0.01)
+    q = sim.world.suspension_positions
+    assert q[0] < 0 < q[1] and q[2] < 0 < q[3]  # uphill (left) wheels droop, downhill ones compress
+    assert abs(pitch) < 0.02
+    assert all(sim.world.wheel_contacts())
+
+
+def test_climbs_a_20_percent_slope(vehicle):
+    terrain = {"kind": "procedural", "size": 200.0, "roughness": 0.0, "slope": [0.2, 0.0], "flat_radius": 0.0}
+    sim = make_sim(vehicle, terrain=terrain)
+    sim.script = SetpointScript([ScriptRow(0.0, 2.0, 0.0, 0.0)])
+    while sim.t < 12.0:
+        sim.step()
+    v = sim.world.base_state()[2]
+    assert math.hypot(v[0], v[1]) == pytest.approx(2.0 * math.cos(math.atan(0.2)) / math.cos(math.atan(0.2)), rel=0.1)
