@@ -58,11 +58,27 @@ workspace_step() {
   step "3/3 catkin workspace ($WS)"
   mkdir -p "$WS/src"
   for p in "${PACKAGES[@]}"; do
-    if [ "$p" = quadrivio ]; then target="$ROOT"; else target="$ROOT/$p"; fi
+    [ "$p" = quadrivio ] && continue
+    target="$ROOT/$p"
     [ -L "$WS/src/$p" ] && [ "$(readlink "$WS/src/$p")" = "$target" ] || ln -sfn "$target" "$WS/src/$p"
   done
-  # Remove links to packages that no longer exist.
-  for l in "$WS/src"/*; do
+  # The root package: a folder of links to its own entries only. A single link to the
+  # repository root would make rospack's package folder contain the workspace itself
+  # (and .venv, results/...): rosrun's 'find -L' then finds every executable twice and
+  # loops through .ws/src/quadrivio/.ws/...
+  root_pkg="$WS/src/quadrivio"
+  [ -L "$root_pkg" ] && rm -f "$root_pkg"
+  mkdir -p "$root_pkg"
+  for entry in "$ROOT"/*; do
+    name=$(basename "$entry")
+    case "$name" in
+      quadrivio_*|results|bench|tools|pytest.ini|Makefile|env.sh|requirements.txt) continue ;;
+    esac
+    [ -e "$entry" ] || continue
+    [ -L "$root_pkg/$name" ] && [ "$(readlink "$root_pkg/$name")" = "$entry" ] || ln -sfn "$entry" "$root_pkg/$name"
+  done
+  # Remove links to packages or entries that no longer exist.
+  for l in "$WS/src"/* "$root_pkg"/*; do
     [ -L "$l" ] && [ ! -e "$l" ] && rm -f "$l"
   done
   # catkin runs with the venv's python: its generators still find Debian's catkin and
