@@ -4,7 +4,8 @@ import math
 import pytest
 
 from quadrivio_description.vehicle import load_vehicle
-from quadrivio_navigation.rollover import OK, TRIP, WARN, RolloverMonitor, RolloverParams, rotate
+from quadrivio_description.frames import rotate, tilt_from_gravity
+from quadrivio_navigation.rollover import OK, TRIP, WARN, RolloverMonitor, RolloverParams
 
 G = 9.81
 SSF = load_vehicle().static_stability_factor  # 0.956 / (2 x 0.58) = 0.824
@@ -58,6 +59,12 @@ def test_tilt_beyond_max_roll_trips():
     assert s.level == TRIP and s.roll == pytest.approx(phi, abs=1e-6)
 
 
+def test_free_fall_is_not_a_tip():
+    mon = RolloverMonitor(RolloverParams(), SSF)
+    assert mon.update(0.0, (0.0, 0.01, 0.02), (0.0, 0.0, 0.0)).level == OK  # dropping at spawn
+    assert settle(mon, (0.0, 0.0, G), t0=0.01).level == OK
+
+
 def test_upside_down_trips():
     assert settle(RolloverMonitor(RolloverParams(), SSF), (0.0, 0.0, -G)).level == TRIP
 
@@ -78,3 +85,11 @@ def test_mount_rotation():
 def test_bad_thresholds():
     with pytest.raises(ValueError, match="warn_ratio"):
         RolloverParams(warn_ratio=0.9, trip_ratio=0.8)
+
+
+def test_tilt_from_gravity():
+    # At rest the accelerometer reads R^T (0, 0, g): for roll r and pitch p (ZYX),
+    # f = g (-sin p, cos p sin r, cos p cos r).
+    roll, pitch = 0.2, -0.1
+    f = (-math.sin(pitch), math.cos(pitch) * math.sin(roll), math.cos(pitch) * math.cos(roll))
+    assert tilt_from_gravity(f) == pytest.approx((roll, pitch))

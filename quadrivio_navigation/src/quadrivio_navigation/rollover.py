@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence, Tuple
+from typing import Sequence
 
 from quadrivio_description.config import param
 
 OK, WARN, TRIP = 0, 1, 2
+AIRBORNE = 0.5  # [g] a specific force below this: not standing on the wheels
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", TRIP: "TRIP"}
 
 
@@ -61,9 +62,19 @@ class RolloverMonitor:
         self.trip_until = -math.inf
 
     def update(self, t: float, f: Sequence[float], w: Sequence[float]) -> RolloverState:
-        """One IMU sample: specific force ``f`` [m/s^2] and angular rate ``w`` [rad/s] in base_link."""
+        """One IMU sample: specific force ``f`` [m/s^2] and angular rate ``w`` [rad/s] in base_link.
+
+        While airborne (``|f| < AIRBORNE * g``: a jump, a drop) the body-frame ratio says
+        nothing about tipping: the sample is skipped. ``f_z`` clearly negative means the
+        vehicle is on its side or upside down.
+        """
         fy, fz = f[1], f[2]
-        ratio = abs(fy / fz) if fz > 1e-3 else math.inf  # fz <= 0: upside down or in free fall
+        if math.sqrt(f[0] ** 2 + fy ** 2 + fz ** 2) < AIRBORNE * 9.81:
+            if self.t is None:
+                return RolloverState(t, 0.0, 0.0, 0.0, OK)
+            return RolloverState(t, self.ratio / self.ssf, self.roll, self.fy,
+                                 TRIP if t < self.trip_until else OK)
+        ratio = abs(fy / fz) if fz > 1e-3 else math.inf
         roll_acc = math.atan2(fy, fz)
         if self.t is None or self.p.tau == 0.0:
             dt, alpha = 0.0, 0.0
@@ -85,13 +96,3 @@ class RolloverMonitor:
         else:
             level = OK
         return RolloverState(t, risk, self.roll, self.fy, level)
-
-
-def rotate(rpy: Tuple[float, float, float], v: Sequence[float]) -> Tuple[float, float, float]:
-    """``R(rpy) v``: a vector from a frame mounted with roll, pitch, yaw into its parent."""
-    r, p, y = rpy
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    R = ((cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
-         (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
-         (-sp, cp * sr, cp * cr))
-    return tuple(R[i][0] * v[0] + R[i][1] * v[1] + R[i][2] * v[2] for i in range(3))  # type: ignore[return-value]

@@ -21,10 +21,11 @@ from diagnostic_updater import Updater
 from sensor_msgs.msg import Imu
 
 from quadrivio_description.config import param
+from quadrivio_description.frames import rotate
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
 
 from ..msg import RolloverRisk
-from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams, rotate
+from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams
 
 
 @dataclass(frozen=True)
