@@ -24,7 +24,6 @@ import math
 import threading
 import zlib
 from collections import deque
-from dataclasses import dataclass
 from typing import Callable, Deque, Tuple
 
 import numpy as np
@@ -32,13 +31,13 @@ import rospy
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
-from quadrivio_description.config import param
 from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
 from quadrivio_sim.msg import RawGps
 
+from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
+                              MagAdapterParams)
 from ..nmea_out import NmeaEncoder, open_output
-from ..noise import (GpsNoise, GpsNoiseParams, ImuNoise, ImuNoiseParams, LaserNoise, LaserNoiseParams, Latency,
-                     LatencyParams, MagNoise, MagNoiseParams, NO_FIX)
+from ..noise import NO_FIX, GpsNoise, ImuNoise, LaserNoise, Latency, MagNoise
 
 
 def node_rng(seed: int) -> np.random.Generator:
@@ -82,24 +81,6 @@ def _stamp(t: float) -> rospy.Time:
 
 
 # ------------------------------------------------------------------------ GPS
-
-
-@dataclass(frozen=True)
-class NmeaParams:
-    output: str = param("", doc="'pty:/path' (pseudo-terminal linked at path), 'tcp:[host:]port', or '' (none)")
-    geoid_separation: float = param(47.0, lo=-200.0, hi=200.0, unit="m",
-                                    doc="ellipsoid minus mean-sea-level height reported in GGA")
-    talker: str = param("GP", choices=("GP", "GN", "GL"), doc="NMEA talker id")
-
-
-@dataclass(frozen=True)
-class GpsAdapterParams:
-    frame_id: str = param("gps_link")
-    publish_fix: bool = param(True, doc="publish gps/fix directly (the NMEA output can feed the real driver instead)")
-    latency: LatencyParams = param(LatencyParams(0.08, 0.015))
-    noise: GpsNoiseParams = param(GpsNoiseParams())
-    nmea: NmeaParams = param(NmeaParams())
-    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
 
 
 class GpsAdapter:
@@ -155,15 +136,6 @@ class GpsAdapter:
 # ------------------------------------------------------------------------ IMU
 
 
-@dataclass(frozen=True)
-class ImuAdapterParams:
-    frame_id: str = param("imu_link")
-    rate: float = param(100.0, lo=1.0, hi=10000.0, unit="Hz", doc="sample rate (for the noise discretisation)")
-    latency: LatencyParams = param(LatencyParams(0.004, 0.001))
-    noise: ImuNoiseParams = param(ImuNoiseParams())
-    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
-
-
 class ImuAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(ImuAdapterParams), "sensors/imu")
@@ -191,14 +163,6 @@ class ImuAdapter:
 # --------------------------------------------------------------- magnetometer
 
 
-@dataclass(frozen=True)
-class MagAdapterParams:
-    frame_id: str = param("mag_link")
-    latency: LatencyParams = param(LatencyParams(0.01, 0.002))
-    noise: MagNoiseParams = param(MagNoiseParams())
-    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
-
-
 class MagAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(MagAdapterParams), "sensors/mag")
@@ -223,14 +187,6 @@ class MagAdapter:
 # --------------------------------------------------------------------- lasers
 
 
-@dataclass(frozen=True)
-class LaserAdapterParams:
-    frame_id: str = param("laser_front")
-    latency: LatencyParams = param(LatencyParams(0.03, 0.005))
-    noise: LaserNoiseParams = param(LaserNoiseParams())
-    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
-
-
 class LaserAdapter:
     def __init__(self) -> None:
         name = rospy.get_name().rsplit("/", 1)[-1]
@@ -253,14 +209,6 @@ class LaserAdapter:
 
 
 # -------------------------------------------------------------------- cameras
-
-
-@dataclass(frozen=True)
-class CameraAdapterParams:
-    frame_id: str = param("camera_left")
-    latency: LatencyParams = param(LatencyParams(0.05, 0.01))
-    pixel_noise_std: float = param(2.0, lo=0.0, hi=100.0, doc="Gaussian noise on each 8-bit channel")
-    release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
 
 
 class CameraAdapter:
