@@ -1,0 +1,147 @@
+// predictor: the localization's estimate carried forward to "now" at 50 Hz.
+//
+// Parameters (private): ~rate (Hz, 50), ~horizon (s, 0: predict to now; more: beyond
+// now, to cover the control loop's own delay), ~max_age (s, 1.0: stop predicting from an
+// estimate older than this), ~map_frame (map), ~base_frame (base_link).
+// Vehicle geometry: /vehicle/wheelbase, /vehicle/steering/ratio.
+// Subscribes: localization/odom (nav_msgs/Odometry), vehicle/state
+// (quadrivio_plc/VehicleState), localization/calibration (quadrivio_localization/Calibration).
+// Publishes: localization/predicted (nav_msgs/Odometry), stamped with the predicted time.
+#include <ros/ros.h>
+#include <nav_msgs/Odometry.h>
+#include <quadrivio_localization/Calibration.h>
+#include <quadrivio_localization/predictor.h>
+#include <quadrivio_plc/VehicleState.h>
+
+#include <cmath>
+#include <memory>
+#include <mutex>
+
+namespace ql = quadrivio_localization;
+
+class PredictorNode
+{
+public:
+  PredictorNode() : nh_(), pnh_("~")
+  {
+    double wheelbase = 0.0, ratio = 1.0;
+    if (!nh_.getParam("/vehicle/wheelbase", wheelbase) || !(wheelbase > 0.0))
+    {
+      ROS_FATAL("predictor: /vehicle/wheelbase is missing or not positive (load vehicle.yaml into /vehicle)");
+      ros::shutdown();
+      return;
+    }
+    nh_.param("/vehicle/steering/ratio", ratio, 1.0);
+    pnh_.param("rate", rate_, 50.0);
+    pnh_.param("horizon", horizon_, 0.0);
+    pnh_.param("max_age", max_age_, 1.0);
+    pnh_.param<std::string>("map_frame", map_frame_, "map");
+    pnh_.param<std::string>("base_frame", base_frame_, "base_link");
+    if (!(rate_ > 0.0 && rate_ <= 1000.0) || !(horizon_ >= 0.0 && horizon_ <= 2.0) || !(max_age_ > 0.0))
+    {
+      ROS_FATAL("predictor: bad parameter: ~rate = %g (0, 1000] Hz, ~horizon = %g [0, 2] s, ~max_age = %g > 0 s",
+                rate_, horizon_, max_age_);
+      ros::shutdown();
+      return;
+    }
+    core_.reset(new ql::Predictor(wheelbase, ratio));
+    pub_ = nh_.advertise<nav_msgs::Odometry>("localization/predicted", 10);
+    sub_odom_ = nh_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
+    sub_state_ = nh_.subscribe("vehicle/state", 100, &PredictorNode::onState, this);
+    sub_cal_ = nh_.subscribe("localization/calibration", 2, &PredictorNode::onCalibration, this);
+    timer_ = nh_.createTimer(ros::Duration(1.0 / rate_), &PredictorNode::onTimer, this);
+    ROS_INFO("predictor: %g Hz, horizon %g s, wheelbase %g m", rate_, horizon_, wheelbase);
+  }
+
+private:
+  void onOdom(const nav_msgs::Odometry::ConstPtr& m)
+  {
+    const auto& q = m->pose.pose.orientation;
+    ql::Pose2 p;
+    p.x = m->pose.pose.position.x;
+    p.y = m->pose.pose.position.y;
+    p.theta = std::atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z));
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.theta))
+    {
+      ROS_WARN_THROTTLE(5.0, "predictor: dropped an estimate with a non-finite pose");
+      return;
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    core_->setEstimate(m->header.stamp.toSec(), p);
+    z_ = m->pose.pose.position.z;
+    covariance_ = m->pose.covariance;
+  }
+
+  void onState(const quadrivio_plc::VehicleState::ConstPtr& m)
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (!core_->addReading({ m->header.stamp.toSec(), m->wheel_speed, m->handlebar }))
+      ROS_WARN_THROTTLE(5.0, "predictor: dropped a vehicle state (out of order or not finite)");
+  }
+
+  void onCalibration(const quadrivio_localization::Calibration::ConstPtr& m)
+  {
+    ql::ModelCalibration c;
+    c.speed_scale = m->wheel_speed_scale;
+    c.handlebar_offset = m->handlebar_offset;
+    c.steering_gain = m->steering_gain;
+    if (!std::isfinite(c.speed_scale) || !std::isfinite(c.handlebar_offset) || !std::isfinite(c.steering_gain))
+      return;
+    std::lock_guard<std::mutex> lock(mutex_);
+    core_->setCalibration(c);
+  }
+
+  void onTimer(const ros::TimerEvent&)
+  {
+    const ros::Time now = ros::Time::now();
+    nav_msgs::Odometry out;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!core_->hasEstimate()) return;
+      const double age = now.toSec() - core_->estimateTime();
+      if (age > max_age_)
+      {
+        ROS_WARN_THROTTLE(5.0, "predictor: the localization's estimate is %.2f s old (> ~max_age %.2f s): not predicting",
+                          age, max_age_);
+        return;
+      }
+      const double target = now.toSec() + horizon_;
+      const ql::Pose2 p = core_->predict(target);
+      out.header.stamp = ros::Time(target);
+      out.header.frame_id = map_frame_;
+      out.child_frame_id = base_frame_;
+      out.pose.pose.position.x = p.x;
+      out.pose.pose.position.y = p.y;
+      out.pose.pose.position.z = z_;
+      out.pose.pose.orientation.z = std::sin(0.5 * p.theta);
+      out.pose.pose.orientation.w = std::cos(0.5 * p.theta);
+      out.pose.covariance = covariance_;
+      double v = 0.0, w = 0.0;
+      if (core_->latest(v, w))
+      {
+        out.twist.twist.linear.x = v;
+        out.twist.twist.angular.z = w;
+      }
+    }
+    pub_.publish(out);
+  }
+
+  ros::NodeHandle nh_, pnh_;
+  ros::Publisher pub_;
+  ros::Subscriber sub_odom_, sub_state_, sub_cal_;
+  ros::Timer timer_;
+  std::unique_ptr<ql::Predictor> core_;
+  std::mutex mutex_;
+  double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, z_ = 0.0;
+  boost::array<double, 36> covariance_{};
+  std::string map_frame_, base_frame_;
+};
+
+int main(int argc, char** argv)
+{
+  ros::init(argc, argv, "predictor");
+  PredictorNode node;
+  if (!ros::ok()) return 1;
+  ros::spin();
+  return 0;
+}

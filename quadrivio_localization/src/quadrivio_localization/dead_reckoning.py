@@ -1,0 +1,48 @@
+"""Dead reckoning on the calibrated kinematic model: the continuous odom -> base_link."""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from typing import Deque, Optional, Tuple
+
+from quadrivio_description.kinematics import bicycle_step
+
+
+class DeadReckoning:
+    """Integrates wheel speed and handlebar samples with calibration ``(k_v, h_0, k_d)``.
+
+    Between samples the model holds the previous sample's values (the PLC reports at
+    50 Hz). :meth:`pose_at` interpolates the history for the map -> odom correction.
+    """
+
+    def __init__(self, wheelbase: float, ratio: float, history: int = 2000) -> None:
+        self.L, self.ratio = wheelbase, ratio
+        self.calib = (1.0, 0.0, 1.0)
+        self.t: Optional[float] = None
+        self.v = self.h = 0.0
+        self.pose = (0.0, 0.0, 0.0)
+        self.history: Deque[Tuple[float, float, float, float]] = deque(maxlen=history)
+
+    def add(self, t: float, speed: float, handlebar: float) -> Tuple[float, float, float]:
+        if self.t is not None and t > self.t:
+            k_v, h0, k_d = self.calib
+            self.pose = bicycle_step(*self.pose, k_v * self.v, k_d * self.ratio * (self.h + h0), self.L, t - self.t)
+        if self.t is None or t >= self.t:
+            self.t, self.v, self.h = t, speed, handlebar
+            self.history.append((t, *self.pose))
+        return self.pose
+
+    def pose_at(self, t: float) -> Optional[Tuple[float, float, float]]:
+        """Odom pose at ``t`` (linear interpolation; None outside the history)."""
+        if not self.history or t < self.history[0][0] or t > self.history[-1][0]:
+            return None
+        times = [h[0] for h in self.history]
+        i = bisect.bisect_left(times, t)
+        if times[i] == t or i == 0:
+            return self.history[i][1:]
+        (t0, *a), (t1, *b) = self.history[i - 1], self.history[i]
+        w = (t - t0) / (t1 - t0)
+        dth = math.remainder(b[2] - a[2], 2 * math.pi)
+        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * dth)

@@ -1,0 +1,193 @@
+"""Measurement models of the smoother, as GTSAM custom factors with analytic Jacobians.
+
+Poses are ``gtsam.Pose2`` (x, y, theta of base_link in map). GTSAM perturbs a Pose2 on
+the right, in the body frame: ``X' = X * Exp(xi)`` with ``xi = (dx_b, dy_b, dtheta)``, so
+a Jacobian with respect to world coordinates ``(t, theta)`` becomes, with respect to
+``xi``: ``[dE/dt R(theta), dE/dtheta]``. Calibration variables are plain vectors.
+
+Models (``e`` is the error, measurement subtracted):
+
+* odometry (Ackermann, rear axle):  ``e = [t_{k+1} - t_k - R_k D_xy(c); theta_{k+1} - theta_k - D_theta(c)]``
+  where ``D(c)`` is the arc the kinematic bicycle model drives over the interval at its
+  time-averaged wheel speed and handlebar, with calibration ``c = (k_v, h_0, k_d)``:
+  speed ``k_v v``, virtual wheel angle ``k_d * ratio * (h + h_0)``;
+* gyro: ``e = theta_{k+1} - theta_k - (sum w_i dt_i - b T)`` with bias ``b``;
+* GPS: ``e = t_k + R_k l + g_k - z`` for antenna lever arm ``l``, fix ``z`` (ENU) and the
+  receiver's drift ``g_k`` (a Gauss-Markov process, one value per keyframe);
+* magnetometer: ``e = S R_k^T h + o - m`` for Earth's horizontal field ``h`` (ENU), the
+  levelled horizontal reading ``m`` and calibration ``(o_x, o_y, s_x, s_y, s_xy)``:
+  hard iron ``o`` and symmetric soft iron ``S = [[s_x, s_xy], [s_xy, s_y]]``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Sequence, Tuple
+
+import gtsam
+import numpy as np
+
+
+
+def wrap(a: float) -> float:
+    """Angle in (-pi, pi]."""
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+def _rot(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+# ------------------------------------------------------------------ odometry
+
+def _f(a: float) -> Tuple[float, float]:
+    """``sin(a) / a`` and its derivative (series near 0)."""
+    if abs(a) < 1e-4:
+        return 1.0 - a * a / 6.0, -a / 3.0
+    return math.sin(a) / a, (a * math.cos(a) - math.sin(a)) / (a * a)
+
+
+def _g(a: float) -> Tuple[float, float]:
+    """``(1 - cos(a)) / a`` and its derivative (series near 0)."""
+    if abs(a) < 1e-4:
+        return a / 2.0, 0.5 - a * a / 8.0
+    return (1.0 - math.cos(a)) / a, (a * math.sin(a) - (1.0 - math.cos(a))) / (a * a)
+
+
+def arc(span: float, speed: float, handlebar: float, calib: Sequence[float], wheelbase: float,
+        ratio: float) -> Tuple[np.ndarray, np.ndarray]:
+    """Relative motion ``(dx, dy, dtheta)`` of the rear axle over ``span`` s at constant
+    measured ``speed`` and ``handlebar``, with calibration ``(k_v, h_0, k_d)``, and its
+    Jacobian with respect to the calibration.
+
+    ``s = k_v v T`` (arc length), ``delta = k_d ratio (h + h_0)``, ``kappa = tan(delta) / L``,
+    ``dtheta = s kappa``, ``dx = s sin(dtheta) / dtheta``, ``dy = s (1 - cos(dtheta)) / dtheta``.
+    """
+    k_v, h0, k_d = calib
+    vt = speed * span
+    s = k_v * vt
+    delta = max(-1.4, min(1.4, k_d * ratio * (handlebar + h0)))
+    kappa = math.tan(delta) / wheelbase
+    dth = s * kappa
+    f, df = _f(dth)
+    g, dg = _g(dth)
+    out = np.array([s * f, s * g, dth])
+    # d/dk_v: ds = vt, d(dtheta) = vt kappa
+    dth_kv = vt * kappa
+    col_kv = np.array([vt * f + s * df * dth_kv, vt * g + s * dg * dth_kv, dth_kv])
+    # d/d(delta): ds = 0, d(dtheta) = s sec^2(delta) / L
+    dth_d = s / (math.cos(delta) ** 2 * wheelbase)
+    col_d = np.array([s * df * dth_d, s * dg * dth_d, dth_d])
+    J = np.column_stack([col_kv, col_d * k_d * ratio, col_d * ratio * (handlebar + h0)])
+    return out, J
+
+
+def odometry_factor(noise, k0: int, k1: int, kc: int, span: float, speed: float, handlebar: float, wheelbase: float,
+                    ratio: float) -> gtsam.CustomFactor:
+    """Between ``X_k0`` and ``X_k1`` through calibration ``kc``, from the interval's
+    time-averaged wheel speed and handlebar angle (see :func:`arc`).
+
+    The position error is taken in map axes, ``t_1 - t_0 - R_0 D_xy``, not in the body
+    frame: with isotropic noise the cost is the same, but the Gauss-Newton information on
+    ``theta_0`` is then ``|D_xy|^2 / sigma^2``, from the motion, and not
+    ``|t_1 - t_0|^2 / sigma^2``, from the position estimates' jitter: standing still, the
+    body-frame form lets GPS noise pose as heading information, and the marginals keep it.
+    """
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
+        p0, p1 = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
+        d, Jc = arc(span, speed, handlebar, values.atVector(this.keys()[2]), wheelbase, ratio)
+        R0, R1 = _rot(p0.theta()), _rot(p1.theta())
+        rd = R0 @ d[:2]
+        e = np.array([p1.x() - p0.x() - rd[0], p1.y() - p0.y() - rd[1], wrap(p1.theta() - p0.theta() - d[2])])
+        if H is not None:
+            J0 = np.zeros((3, 3))
+            J0[:2, :2] = -R0
+            J0[:2, 2] = np.array([rd[1], -rd[0]])  # -d(R0 d)/d(theta0)
+            J0[2, 2] = -1.0
+            J1 = np.zeros((3, 3))
+            J1[:2, :2] = R1
+            J1[2, 2] = 1.0
+            Jk = np.vstack([-R0 @ Jc[:2], -Jc[2:3]])
+            H[0], H[1], H[2] = J0, J1, Jk
+        return e
+    return gtsam.CustomFactor(noise, [k0, k1, kc], error)
+
+
+# ---------------------------------------------------------------------- gyro
+
+def gyro_factor(noise, k0: int, k1: int, kb: int, dtheta: float, span: float) -> gtsam.CustomFactor:
+    """``dtheta`` = sum of vertical rates x dt over the interval of length ``span``."""
+    def error(this, values, H):
+        p0, p1 = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
+        b = values.atVector(this.keys()[2])[0]
+        e = np.array([wrap(p1.theta() - p0.theta() - (dtheta - b * span))])
+        if H is not None:
+            H[0] = np.array([[0.0, 0.0, -1.0]])
+            H[1] = np.array([[0.0, 0.0, 1.0]])
+            H[2] = np.array([[span]])
+        return e
+    return gtsam.CustomFactor(noise, [k0, k1, kb], error)
+
+
+# ----------------------------------------------------------------------- GPS
+
+def gps_factor(noise, k: int, kg: int, z: Sequence[float], lever: Sequence[float]) -> gtsam.CustomFactor:
+    """``e = t_k + R_k l + g_k - z``: the antenna plus the receiver's slowly drifting bias ``g_k``."""
+    zz, l = np.asarray(z, float), np.asarray(lever, float)
+
+    def error(this, values, H):
+        p = values.atPose2(this.keys()[0])
+        g = values.atVector(this.keys()[1])
+        R = _rot(p.theta())
+        e = np.array([p.x(), p.y()]) + R @ l + g - zz
+        if H is not None:
+            J = np.zeros((2, 3))
+            J[:, 0:2] = R
+            J[:, 2] = R @ np.array([-l[1], l[0]])
+            H[0] = J
+            H[1] = np.eye(2)
+        return e
+    return gtsam.CustomFactor(noise, [k, kg], error)
+
+
+def gps_antenna(pose: gtsam.Pose2, lever: Sequence[float]) -> np.ndarray:
+    return np.array([pose.x(), pose.y()]) + _rot(pose.theta()) @ np.asarray(lever, float)
+
+
+# -------------------------------------------------------------- magnetometer
+
+def mag_predict(theta: float, calib: Sequence[float], h_en: Sequence[float]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Predicted levelled reading, and its Jacobians w.r.t. theta and the calibration."""
+    ox, oy, sx, sy, sxy = calib
+    c, s = math.cos(theta), math.sin(theta)
+    bx, by = c * h_en[0] + s * h_en[1], -s * h_en[0] + c * h_en[1]  # R(theta)^T h
+    S = np.array([[sx, sxy], [sxy, sy]])
+    m = S @ np.array([bx, by]) + np.array([ox, oy])
+    dm_dth = S @ np.array([by, -bx])
+    dm_dc = np.array([[1.0, 0.0, bx, 0.0, by], [0.0, 1.0, 0.0, by, bx]])
+    return m, dm_dth, dm_dc
+
+
+def mag_factor(noise, k: int, kc: int, m: Sequence[float], h_en: Sequence[float]) -> gtsam.CustomFactor:
+    mm = np.asarray(m, float)
+
+    def error(this, values, H):
+        p = values.atPose2(this.keys()[0])
+        c = values.atVector(this.keys()[1])
+        pred, dth, dc = mag_predict(p.theta(), c, h_en)
+        if H is not None:
+            J = np.zeros((2, 3))
+            J[:, 2] = dth
+            H[0] = J
+            H[1] = dc
+        return pred - mm
+    return gtsam.CustomFactor(noise, [k, kc], error)
+
+
+def mag_heading(m: Sequence[float], calib: Sequence[float], h_en: Sequence[float]) -> float:
+    """Heading that explains a levelled reading ``m`` under calibration ``calib``."""
+    ox, oy, sx, sy, sxy = calib
+    b = np.linalg.solve(np.array([[sx, sxy], [sxy, sy]]), np.asarray(m, float) - np.array([ox, oy]))
+    # b = R(theta)^T h  ->  theta = angle(h) - angle(b)
+    return wrap(math.atan2(h_en[1], h_en[0]) - math.atan2(b[1], b[0]))

@@ -1,0 +1,213 @@
+"""Localization node: the fixed-lag smoother with online self-calibration (ROAMFREE's role).
+
+Parameters (private, ``config/localization.yaml``): every key of
+:class:`quadrivio_localization.smoother.LocalizerParams`, and ``~map_frame`` (map),
+``~odom_frame`` (odom), ``~base_frame`` (base_link), ``~publish_tf`` (true),
+``~calibration_period`` (s, 1.0). Vehicle geometry from ``/vehicle``, the datum and the
+Earth's field from ``/site``.
+
+Subscribes: ``gps/fix`` (NavSatFix), ``imu/data`` (Imu), ``imu/mag`` (MagneticField),
+``vehicle/state`` (quadrivio_plc/VehicleState).
+Publishes: ``localization/odom`` (nav_msgs/Odometry, map -> base_link, at ``~rate``,
+stamped with the keyframe time), ``localization/calibration``
+(quadrivio_localization/Calibration, every ``~calibration_period``), TF ``map -> odom``
+and ``odom -> base_link`` (dead reckoning on the calibrated model), ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import rospy
+import tf2_ros
+from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_updater import Updater
+from geometry_msgs.msg import TransformStamped
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu, MagneticField, NavSatFix
+
+from quadrivio_description.config import param
+from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
+                                             vehicle_params, with_scenario)
+from quadrivio_plc.msg import VehicleState
+
+from ..dead_reckoning import DeadReckoning
+from ..msg import Calibration
+from ..smoother import CALIBRATION_NAMES, Localizer, LocalizerParams
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    map_frame: str = param("map")
+    odom_frame: str = param("odom")
+    base_frame: str = param("base_link")
+    publish_tf: bool = param(True, doc="publish map -> odom -> base_link")
+    calibration_period: float = param(1.0, lo=0.05, hi=60.0, unit="s", doc="period of localization/calibration")
+
+
+def quaternion(roll: float, pitch: float, yaw: float):
+    cr, sr, cp, sp, cy, sy = (math.cos(roll / 2), math.sin(roll / 2), math.cos(pitch / 2), math.sin(pitch / 2),
+                              math.cos(yaw / 2), math.sin(yaw / 2))
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy)
+
+
+class LocalizationNode:
+    def __init__(self) -> None:
+        mine, rest = split_params(private_params(), NodeParams)
+        self.np: NodeParams = node_params(NodeParams, mine)
+        self.p: LocalizerParams = with_scenario(node_params(LocalizerParams, rest), "localization")
+        vehicle = vehicle_params()
+        self.loc = Localizer(self.p, vehicle, site_params())
+        self.dr = DeadReckoning(vehicle.wheelbase, vehicle.steering.ratio)
+        self.lock = threading.Lock()  # the smoother is fed from subscriber threads, updated on the timer
+        self.pub_odom = rospy.Publisher("localization/odom", Odometry, queue_size=20)
+        self.pub_cal = rospy.Publisher("localization/calibration", Calibration, queue_size=5, latch=True)
+        self.tf = tf2_ros.TransformBroadcaster() if self.np.publish_tf else None
+        self.estimate = None
+        self.update_ms = []
+        self.last_cal = -math.inf
+        rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=100)
+        rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=200)
+        rospy.Subscriber("imu/mag", MagneticField, self._on_mag, queue_size=100)
+        rospy.Subscriber("gps/fix", NavSatFix, self._on_gps, queue_size=20)
+        self.diag = Updater()
+        self.diag.setHardwareID("localization")
+        self.diag.add("localization", self._diagnose)
+        rospy.Timer(rospy.Duration(1.0 / self.p.rate), self._tick)
+        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+
+    # --------------------------------------------------------------- inputs
+    def _on_state(self, m: VehicleState) -> None:
+        t = m.header.stamp.to_sec()
+        with self.lock:
+            self.loc.add_vehicle_state(t, m.wheel_speed, m.handlebar)
+            x, y, th = self.dr.add(t, m.wheel_speed, m.handlebar)
+        if self.tf is not None and math.isfinite(x):
+            tr = TransformStamped()
+            tr.header.stamp = m.header.stamp
+            tr.header.frame_id, tr.child_frame_id = self.np.odom_frame, self.np.base_frame
+            tr.transform.translation.x, tr.transform.translation.y = x, y
+            q = tr.transform.rotation
+            q.x, q.y, q.z, q.w = quaternion(0.0, 0.0, th)
+            self.tf.sendTransform(tr)
+
+    def _on_imu(self, m: Imu) -> None:
+        a, w = m.linear_acceleration, m.angular_velocity
+        with self.lock:
+            self.loc.add_imu(m.header.stamp.to_sec(), (a.x, a.y, a.z), (w.x, w.y, w.z))
+
+    def _on_mag(self, m: MagneticField) -> None:
+        f = m.magnetic_field
+        with self.lock:
+            self.loc.add_mag(m.header.stamp.to_sec(), (f.x, f.y, f.z))
+
+    def _on_gps(self, m: NavSatFix) -> None:
+        cov = m.position_covariance
+        known = m.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN
+        with self.lock:
+            self.loc.add_gps(m.header.stamp.to_sec(), m.latitude, m.longitude, m.altitude,
+                             cov[0] if known else math.nan, cov[4] if known else math.nan, m.status.status)
+
+    # --------------------------------------------------------------- output
+    def _tick(self, _event) -> None:
+        now = rospy.get_time()
+        w0 = time.perf_counter()
+        with self.lock:
+            try:
+                est = self.loc.update(now)
+            except RuntimeError as exc:  # a numerically failed update must not end localization
+                rospy.logerr_throttle(5.0, "smoother update failed (%s); restarting from the next fix", exc)
+                self.loc = Localizer(self.p, vehicle_params(), site_params())
+                return
+            sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.np.calibration_period else None
+        self.update_ms.append((time.perf_counter() - w0) * 1e3)
+        self.update_ms = self.update_ms[-1000:]
+        if est is None:
+            rospy.loginfo_throttle(10.0, "localization waiting for a GPS fix and the magnetometer")
+            return
+        self.estimate = est
+        self.dr.calib = (est.calibration["wheel_speed_scale"], est.calibration["handlebar_offset"],
+                         est.calibration["steering_gain"])
+        stamp = rospy.Time.from_sec(est.stamp)
+        m = Odometry()
+        m.header.stamp = stamp
+        m.header.frame_id, m.child_frame_id = self.np.map_frame, self.np.base_frame
+        p = m.pose.pose
+        p.position.x, p.position.y, p.position.z = est.x, est.y, est.z
+        p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = quaternion(est.roll, est.pitch, est.theta)
+        cov = [0.0] * 36
+        for i, a in enumerate((0, 1, 5)):  # x, y, yaw
+            for j, b in enumerate((0, 1, 5)):
+                cov[6 * a + b] = float(est.covariance[i, j])
+        cov[14] = cov[21] = cov[28] = 1e3  # z, roll, pitch: not estimated by the smoother
+        m.pose.covariance = cov
+        m.twist.twist.linear.x = est.speed
+        m.twist.twist.angular.z = est.yaw_rate
+        self.pub_odom.publish(m)
+        if self.tf is not None:
+            self._publish_map_to_odom(est, stamp)
+        if sigma is not None:
+            self.last_cal = now
+            self._publish_calibration(est, sigma, stamp)
+
+    def _publish_map_to_odom(self, est, stamp) -> None:
+        odom = self.dr.pose_at(est.stamp)
+        if odom is None:
+            return
+        # T_map_odom = T_map_base * T_odom_base^-1 (planar)
+        ox, oy, oth = odom
+        th = est.theta - oth
+        c, s = math.cos(th), math.sin(th)
+        tr = TransformStamped()
+        tr.header.stamp = stamp
+        tr.header.frame_id, tr.child_frame_id = self.np.map_frame, self.np.odom_frame
+        tr.transform.translation.x = est.x - (c * ox - s * oy)
+        tr.transform.translation.y = est.y - (s * ox + c * oy)
+        q = tr.transform.rotation
+        q.x, q.y, q.z, q.w = quaternion(0.0, 0.0, th)
+        self.tf.sendTransform(tr)
+
+    def _publish_calibration(self, est, sigma, stamp) -> None:
+        c = est.calibration
+        m = Calibration()
+        m.header.stamp = stamp
+        m.wheel_speed_scale, m.handlebar_offset = c["wheel_speed_scale"], c["handlebar_offset"]
+        m.steering_gain, m.gyro_bias = c["steering_gain"], c["gyro_bias"]
+        m.mag_hard_iron = [c["mag_hard_iron_x"] * 1e-6, c["mag_hard_iron_y"] * 1e-6]
+        m.mag_soft_iron = [c["mag_soft_iron_xx"], c["mag_soft_iron_yy"], c["mag_soft_iron_xy"]]
+        scale = [1, 1, 1, 1, 1e-6, 1e-6, 1, 1, 1]
+        m.sigma = [sigma.get(n, math.nan) * k for n, k in zip(CALIBRATION_NAMES, scale)]
+        self.pub_cal.publish(m)
+
+    def _diagnose(self, stat):
+        c = self.loc.counters
+        if self.estimate is None:
+            stat.summary(DiagnosticStatus.WARN, "waiting for a GPS fix and the magnetometer")
+        elif rospy.get_time() - self.estimate.stamp > 1.0:
+            stat.summary(DiagnosticStatus.ERROR, "no new keyframe for more than 1 s")
+        else:
+            sd = math.sqrt(max(self.estimate.covariance[0, 0], self.estimate.covariance[1, 1]))
+            stat.summary(DiagnosticStatus.OK, f"tracking, position sigma {sd:.2f} m")
+        ups = sorted(self.update_ms) or [math.nan]
+        for key, value in (("magnetometer calibration", self.p.priors.magnetometer.source),
+                           ("keyframes", c.keyframes), ("GPS fixes used", c.gps_used),
+                           ("GPS fixes rejected (multipath suspected)", c.gps_rejected),
+                           ("GPS epochs without a fix", c.gps_no_fix), ("magnetometer factors", c.mag_used),
+                           ("magnetometer slots skipped at rest", c.mag_skipped_at_rest),
+                           ("intervals without odometry", c.intervals_without_odometry),
+                           ("intervals without gyro", c.intervals_without_gyro),
+                           ("bad or out-of-order inputs", c.bad_input + c.out_of_order),
+                           ("update p50 [ms]", f"{ups[len(ups) // 2]:.2f}"),
+                           ("update p99 [ms]", f"{ups[min(len(ups) - 1, int(0.99 * len(ups)))]:.2f}")):
+            stat.add(key, str(value))
+        return stat
+
+
+def main() -> None:
+    rospy.init_node("localization")
+    LocalizationNode()
+    rospy.spin()

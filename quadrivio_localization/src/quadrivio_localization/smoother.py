@@ -1,0 +1,602 @@
+"""Fixed-lag smoother for the Quadrivio ATV with online self-calibration (paper section 2.2).
+
+Like ROAMFREE on the real vehicle, the smoother fuses vehicle kinematics (rear wheel
+speed and handlebar angle), the gyroscope, the GPS and the magnetometer, and
+estimates the calibration of its own measurement models while it goes: wheel speed
+scale, handlebar offset, steering gain, gyro bias (a random walk), and the
+magnetometer's hard and soft iron.
+
+Keyframes ``X_k`` (gtsam.Pose2 of base_link in map) lie on a fixed grid of
+``1 / rate`` s. A keyframe is created once the odometry and the IMU cover its interval
+(or ``max_wait`` s have passed: a silent sensor does not stop the estimate), so late
+data is waited for briefly; GPS fixes, which arrive about 80 ms after their stamp, are
+attached to the keyframe of their measurement time when they arrive. The graph is
+solved by GTSAM's iSAM2 fixed-lag smoother (``lag`` s). As in ROAMFREE, the calibration
+parameters are slowly varying processes: one value per keyframe, linked by a tight
+random walk, so the graph stays a chain and an update only touches its newest part.
+
+Magnetometer: one factor per ``1 / mag_rate`` s (2 Hz) of averaged readings with a
+model-error sigma, and one per stop while the vehicle stands still. At rest the
+heading and the hard iron are observable only together (as far as the calibration
+priors allow: 15 uT of unknown hard iron against a 24 uT horizontal field is +-35
+degrees of heading), and 20 Hz of factors claiming independent errors, once
+marginalised at slightly different linearisation points, dragged the heading by 45
+degrees in 5 s while the reported sigma shrank to 9 degrees. The odometry factor's
+position error is in map axes for the same reason (see factors.odometry_factor).
+
+Outlier handling: GPS factors have a Huber kernel, and a fix whose innovation is
+implausible against the current estimate (squared Mahalanobis distance above
+``noise.gps_gate`` once the estimate has settled) is rejected and counted, so
+multipath bursts do not drag the estimate; after ``5`` s of rejections in a row the
+gate yields, so a genuinely lost estimate re-converges. Every factor's model is in
+:mod:`quadrivio_localization.factors`.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Deque, Dict, List, Optional, Tuple
+
+import gtsam
+import numpy as np
+
+from quadrivio_description.config import param
+from quadrivio_description.site import SiteParams
+from quadrivio_description.vehicle import VehicleParams
+
+from . import factors as F
+from .leveling import Leveller, lowpass
+
+X = gtsam.symbol_shorthand.X  # poses
+B = gtsam.symbol_shorthand.B  # gyro bias
+K = gtsam.symbol_shorthand.K  # kinematic calibration (k_v, h_0, k_d)
+M = gtsam.symbol_shorthand.M  # magnetometer calibration (o_x, o_y, s_x, s_y, s_xy), field in uT
+G = gtsam.symbol_shorthand.G  # GPS receiver drift (east, north) [m]
+# B, K, M and G have one variable per keyframe, linked by random walks: the graph stays a
+# chain (constant variables tied to every factor would make iSAM2 relinearize and
+# re-eliminate the whole window at each update), and the calibration may drift slowly.
+UT = 1e6  # tesla -> microtesla
+CALIBRATION_NAMES = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias", "mag_hard_iron_x",
+                     "mag_hard_iron_y", "mag_soft_iron_xx", "mag_soft_iron_yy", "mag_soft_iron_xy")
+
+
+@dataclass(frozen=True)
+class NoiseParams:
+    odometry_xy: float = param(0.01, lo=1e-5, hi=10.0, unit="m", doc="odometry position noise per interval")
+    odometry_xy_per_m: float = param(0.03, lo=0.0, hi=1.0, unit="m/m", doc="odometry position noise per metre")
+    odometry_theta: float = param(0.002, lo=1e-6, hi=1.0, unit="rad", doc="odometry heading noise per interval")
+    odometry_theta_per_m: float = param(0.01, lo=0.0, hi=1.0, unit="rad/m", doc="odometry heading noise per metre")
+    gyro_noise: float = param(2e-3, lo=1e-6, hi=1.0, unit="rad/s/sqrt(Hz)", doc="gyro white noise density (with model error)")
+    gyro_bias_walk: float = param(1e-4, lo=1e-8, hi=1.0, unit="rad/s^2/sqrt(Hz)", doc="gyro bias random walk")
+    gps_floor: float = param(0.02, lo=1e-4, hi=100.0, unit="m", doc="smallest GPS white-noise standard deviation")
+    gps_drift: float = param(0.15, lo=0.0, hi=100.0, unit="m",
+                             doc="stationary std of the receiver's drift (part of each fix's reported variance)")
+    gps_drift_tau: float = param(120.0, lo=1.0, hi=1e5, unit="s", doc="correlation time of the receiver's drift")
+    gps_default: float = param(3.0, lo=1e-3, hi=1000.0, unit="m", doc="GPS standard deviation when the fix has none")
+    gps_huber: float = param(1.5, lo=0.1, hi=100.0, doc="Huber threshold of the GPS factors [sigma]")
+    gps_gate: float = param(30.0, lo=1.0, hi=1e6, doc="reject a fix with a larger squared Mahalanobis innovation")
+    mag: float = param(1.5, lo=1e-3, hi=100.0, unit="uT",
+                       doc="magnetometer model error of a slot's mean reading, horizontal (correlated over a slot)")
+    mag_white: float = param(0.3, lo=0.0, hi=100.0, unit="uT", doc="magnetometer white noise per reading")
+    mag_huber: float = param(2.0, lo=0.1, hi=100.0, doc="Huber threshold of the magnetometer factors [sigma]")
+    no_odometry: Tuple[float, float, float] = param((3.0, 3.0, 0.5), unit="m, m, rad",
+                                                    doc="weak motion prior for an interval without odometry")
+    kinematic_walk: Tuple[float, float, float] = param((2e-4, 2e-4, 4e-4), unit="1/sqrt(s), rad/sqrt(s), 1/sqrt(s)",
+                                                       doc="random walk of k_v, h_0, k_d")
+    mag_walk: Tuple[float, float, float, float, float] = param((0.02, 0.02, 5e-4, 5e-4, 5e-4),
+                                                               unit="uT/sqrt(s) (x2), 1/sqrt(s) (x3)",
+                                                               doc="random walk of the magnetometer calibration")
+
+
+@dataclass(frozen=True)
+class Prior:
+    mean: float = param(doc="prior mean")
+    sigma: float = param(lo=1e-9, hi=1e9, doc="prior standard deviation")
+
+
+@dataclass(frozen=True)
+class MagCalibration:
+    """What is known of the magnetometer before the run: a calibration from recorded data
+    (``rosrun quadrivio_localization calibrate_mag``) or, without one, wide priors. With an
+    unknown hard iron of sigma ``s`` against a horizontal field ``h``, north is only known
+    to about ``s / h`` rad until the vehicle moves: calibrate the magnetometer once."""
+    hard_iron: Tuple[float, float] = param((0.0, 0.0), unit="uT", doc="o_x, o_y")
+    hard_iron_sigma: float = param(15.0, lo=1e-6, hi=1e3, unit="uT", doc="standard deviation of o_x and o_y")
+    soft_iron: Tuple[float, float, float] = param((1.0, 1.0, 0.0), unit="1", doc="s_xx, s_yy, s_xy")
+    soft_iron_sigma: Tuple[float, float, float] = param((0.2, 0.2, 0.1), unit="1", doc="their standard deviations")
+    source: str = param("uncalibrated", doc="where the calibration comes from (bag, date): reported, not used")
+
+    def vectors(self) -> Tuple[np.ndarray, np.ndarray]:
+        mean = np.array(list(self.hard_iron) + list(self.soft_iron), float)
+        sigma = np.array([self.hard_iron_sigma] * 2 + list(self.soft_iron_sigma), float)
+        return mean, sigma
+
+
+@dataclass(frozen=True)
+class CalibrationPriors:
+    wheel_speed_scale: Prior = param(Prior(1.0, 0.05), doc="k_v [1]")
+    handlebar_offset: Prior = param(Prior(0.0, 0.05), doc="h_0 [rad]")
+    steering_gain: Prior = param(Prior(1.0, 0.1), doc="k_d [1]")
+    gyro_bias: Prior = param(Prior(0.0, 0.01), doc="[rad/s]")
+    magnetometer: MagCalibration = param(MagCalibration(), doc="hard and soft iron of the levelled magnetometer")
+
+
+@dataclass(frozen=True)
+class LocalizerParams:
+    rate: float = param(20.0, lo=1.0, hi=200.0, unit="Hz", doc="keyframe and output rate")
+    lag: float = param(3.0, lo=0.2, hi=60.0, unit="s", doc="smoother window")
+    max_wait: float = param(0.25, lo=0.0, hi=5.0, unit="s",
+                            doc="create a keyframe this long after its time even if a sensor has not covered it")
+    use_gps: bool = param(True)
+    use_mag: bool = param(True)
+    use_gyro: bool = param(True)
+    use_odometry: bool = param(True)
+    mag_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="magnetometer factors per second (readings averaged)")
+    calibrate: bool = param(True, doc="estimate the calibration online (false: hold the priors' means)")
+    initial_heading_sigma: float = param(3.0, lo=1e-3, hi=4.0, unit="rad",
+                                         doc="prior on the first heading (weak: the magnetometer factors and their "
+                                             "calibration priors already say how well north is known)")
+    tilt_tau: float = param(1.0, lo=0.0, hi=100.0, unit="s", doc="low-pass of roll/pitch from the accelerometer")
+    altitude_tau: float = param(2.0, lo=0.0, hi=100.0, unit="s", doc="low-pass of the altitude from GPS")
+    noise: NoiseParams = param(NoiseParams())
+    priors: CalibrationPriors = param(CalibrationPriors())
+
+
+@dataclass
+class Estimate:
+    stamp: float  # [s] time of the newest keyframe
+    x: float  # [m] base_link in map
+    y: float
+    theta: float  # [rad]
+    z: float  # [m] from the GPS altitude
+    roll: float  # [rad] from the accelerometer
+    pitch: float
+    covariance: np.ndarray  # 3 x 3 of (x, y, theta) in map axes
+    speed: float  # [m/s] calibrated rear axle speed
+    yaw_rate: float  # [rad/s] bias-corrected, about the vertical
+    calibration: Dict[str, float]
+
+
+@dataclass
+class Counters:
+    keyframes: int = 0
+    gps_used: int = 0
+    gps_rejected: int = 0
+    gps_no_fix: int = 0
+    gps_too_old: int = 0
+    mag_used: int = 0
+    mag_skipped_at_rest: int = 0
+    intervals_without_odometry: int = 0
+    intervals_without_gyro: int = 0
+    out_of_order: int = 0
+    bad_input: int = 0
+    update_time: float = 0.0  # [s] wall time of the last smoother update (set by the caller)
+
+
+def _finite(*values) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class Localizer:
+    """Feed stamped sensor data with ``add_*`` in arrival order, call :meth:`update` at ``rate``."""
+
+    GATE_YIELD = 5.0  # [s] of consecutive rejections after which the GPS gate yields
+    REST_SPEED = 0.05  # [m/s] wheel speed below which the vehicle stands still
+
+    def __init__(self, p: LocalizerParams, vehicle: VehicleParams, site: SiteParams) -> None:
+        self.p = p
+        self.v = vehicle
+        self.frame = site.local_frame()
+        h = site.magnetic_field.enu()
+        self.h_en = (h[0] * UT, h[1] * UT)
+        self.lever = tuple(vehicle.sensors["gps_link"].xyz[:2])
+        self.lever_z = vehicle.sensors["gps_link"].xyz[2]
+        self.leveller = Leveller(vehicle, p.tilt_tau)
+        self.dt = 1.0 / p.rate
+        self.states: Deque[Tuple[float, float, float]] = deque(maxlen=20000)  # t, speed, handlebar
+        self.gyro: Deque[Tuple[float, float]] = deque(maxlen=20000)  # t, vertical rate [rad/s]
+        self.mags: Deque[Tuple[float, float, float]] = deque(maxlen=5000)  # t, levelled m_x, m_y [uT]
+        self.gps_pending: List[Tuple[float, np.ndarray, float, float]] = []  # t, enu, var_e, var_n
+        self.z: Optional[float] = None
+        self.z_t: Optional[float] = None
+        self.k: Optional[int] = None  # newest keyframe index
+        self.oldest_k: Optional[int] = None
+        self.smoother: Optional[gtsam.IncrementalFixedLagSmoother] = None
+        self.result = gtsam.Values()
+        self.counters = Counters()
+        self.cov = np.diag([1e4, 1e4, 10.0])
+        self.settled = False
+        self.last_accept = -math.inf
+        self.rejecting_since: Optional[float] = None
+        self.mag_at_rest = False  # a magnetometer factor already stands for the current stop
+        self.latest_t = -math.inf  # newest sensor time seen
+        self.latest_speed = 0.0  # [m/s] calibrated speed of the newest interval
+        self.latest_rate = 0.0  # [rad/s] bias-corrected yaw rate of the newest interval
+
+    # ------------------------------------------------------------------ input
+    def add_vehicle_state(self, t: float, speed: float, handlebar: float) -> None:
+        if not _finite(t, speed, handlebar):
+            self.counters.bad_input += 1
+            return
+        if self.states and t < self.states[-1][0]:
+            self.counters.out_of_order += 1
+            return
+        self.states.append((t, speed, handlebar))
+        self.leveller.add_speed(t, speed)
+        self.latest_t = max(self.latest_t, t)
+
+    def add_imu(self, t: float, f: Tuple[float, float, float], w: Tuple[float, float, float]) -> None:
+        if not _finite(t, *f, *w):
+            self.counters.bad_input += 1
+            return
+        if self.gyro and t < self.gyro[-1][0]:
+            self.counters.out_of_order += 1
+            return
+        self.gyro.append((t, self.leveller.add_imu(t, f, w)))
+        self.latest_t = max(self.latest_t, t)
+
+    def add_mag(self, t: float, m: Tuple[float, float, float]) -> None:
+        if not _finite(t, *m):
+            self.counters.bad_input += 1
+            return
+        mx, my = self.leveller.level_mag(m)
+        self.mags.append((t, mx * UT, my * UT))
+
+    def add_gps(self, t: float, lat: float, lon: float, alt: float, var_e: float, var_n: float, status: int) -> None:
+        if status < 0:
+            self.counters.gps_no_fix += 1
+            return
+        if not _finite(t, lat, lon, alt):
+            self.counters.bad_input += 1
+            return
+        enu = np.asarray(self.frame.lla_to_enu(lat, lon, alt))
+        self.z = lowpass(self.z, float(enu[2]) - self.lever_z, self.z_t, t, self.p.altitude_tau)
+        self.z_t = t
+        floor = self.p.noise.gps_floor ** 2
+        ve = var_e if _finite(var_e) and var_e > 0 else self.p.noise.gps_default ** 2
+        vn = var_n if _finite(var_n) and var_n > 0 else self.p.noise.gps_default ** 2
+        self.gps_pending.append((t, enu[:2], max(ve, floor), max(vn, floor)))
+
+    # ---------------------------------------------------------------- helpers
+    def _t(self, k: int) -> float:
+        return k * self.dt
+
+    def _samples(self, t0: float, t1: float) -> List[Tuple[float, float, float]]:
+        """Piecewise-constant ``(dt, speed, handlebar)`` over ``[t0, t1]`` from the states."""
+        times = [s[0] for s in self.states]
+        i = bisect.bisect_right(times, t0) - 1
+        if i < 0:
+            return []
+        out, t = [], t0
+        while t < t1 - 1e-12:
+            _, v, h = self.states[i]
+            t_next = self.states[i + 1][0] if i + 1 < len(self.states) else t1
+            seg_end = min(t1, max(t_next, t))
+            if seg_end > t:
+                out.append((seg_end - t, v, h))
+            t = seg_end
+            i += 1
+            if i >= len(self.states):
+                if t < t1:
+                    out.append((t1 - t, v, h))
+                break
+        return out
+
+    def _gyro_integral(self, t0: float, t1: float) -> Optional[float]:
+        times = [g[0] for g in self.gyro]
+        i = bisect.bisect_right(times, t0) - 1
+        if i < 0 or times[-1] < t1 - 0.5 * self.dt:
+            return None
+        total, t = 0.0, t0
+        while t < t1 - 1e-12 and i < len(self.gyro):
+            t_next = self.gyro[i + 1][0] if i + 1 < len(self.gyro) else t1
+            seg = min(t1, max(t_next, t)) - t
+            total += self.gyro[i][1] * seg
+            t += seg
+            i += 1
+        return total
+
+    def _covered(self, t1: float, now: float) -> bool:
+        """Whether the odometry and the gyro have data up to ``t1`` (or waiting is over)."""
+        if now - t1 >= self.p.max_wait:
+            return True
+        ok_states = not self.p.use_odometry or (self.states and self.states[-1][0] >= t1 - 1e-9)
+        ok_gyro = not self.p.use_gyro or (self.gyro and self.gyro[-1][0] >= t1 - 1e-9)
+        return bool(ok_states and ok_gyro)
+
+    def _vector(self, key: int, values: gtsam.Values) -> np.ndarray:
+        return values.atVector(key) if values.exists(key) else self.result.atVector(key)
+
+    def _has(self, key: int, values: gtsam.Values) -> bool:
+        return values.exists(key) or self.result.exists(key)
+
+    def _prior_vector(self, priors) -> Tuple[np.ndarray, np.ndarray]:
+        return np.array([p.mean for p in priors]), np.array([p.sigma for p in priors])
+
+    # ----------------------------------------------------------- initialising
+    def _initialize(self, now: float) -> bool:
+        """Start the graph at the first grid time after the first GPS fix."""
+        if not self.gps_pending or (self.p.use_mag and not self.mags):
+            return False
+        t_gps, z, ve, vn = self.gps_pending[0]
+        pr = self.p.priors
+        kin_mean, kin_sigma = self._prior_vector((pr.wheel_speed_scale, pr.handlebar_offset, pr.steering_gain))
+        mag_mean, mag_sigma = pr.magnetometer.vectors()
+        if not self.p.calibrate:  # calibration held at the priors' means (see _add_keyframe)
+            kin_sigma, mag_sigma = kin_sigma * 1e-3, mag_sigma * 1e-3
+        self.held = (kin_mean, kin_sigma, mag_mean, mag_sigma)
+        self.k = self.oldest_k = int(math.ceil(t_gps / self.dt - 1e-9))
+        m_avg = None
+        if self.p.use_mag:
+            # The readings so far (up to half a mag slot back) make the first keyframe's factor
+            # and its heading guess; later ones go to the regular slots.
+            recent = [m for m in self.mags if abs(m[0] - t_gps) < 0.5 / self.p.mag_rate] or [self.mags[-1]]
+            m_avg = np.mean([(m[1], m[2]) for m in recent], axis=0)
+            n_recent = len(recent)
+            theta0 = F.mag_heading(m_avg, mag_mean, self.h_en)
+            t_first = self._t(self.k)
+            while self.mags and self.mags[0][0] <= t_first:
+                self.mags.popleft()
+        else:
+            theta0 = 0.0
+        R = np.array([[math.cos(theta0), -math.sin(theta0)], [math.sin(theta0), math.cos(theta0)]])
+        xy = z - R @ np.asarray(self.lever)
+        pose0 = gtsam.Pose2(float(xy[0]), float(xy[1]), theta0)
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(0.01)
+        params.relinearizeSkip = 1
+        self.smoother = gtsam.IncrementalFixedLagSmoother(self.p.lag, params)
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        heading_sigma = self.p.initial_heading_sigma if self.p.use_mag else math.pi
+        pos_sigma = math.sqrt(max(ve, vn)) + 0.5
+        graph.add(gtsam.PriorFactorPose2(X(self.k), pose0,
+                                         gtsam.noiseModel.Diagonal.Sigmas(np.array([pos_sigma, pos_sigma, heading_sigma]))))
+        graph.add(gtsam.PriorFactorVector(B(self.k), np.array([pr.gyro_bias.mean]),
+                                          gtsam.noiseModel.Diagonal.Sigmas(np.array([pr.gyro_bias.sigma]))))
+        graph.add(gtsam.PriorFactorVector(K(self.k), kin_mean, gtsam.noiseModel.Diagonal.Sigmas(kin_sigma)))
+        graph.add(gtsam.PriorFactorVector(M(self.k), mag_mean, gtsam.noiseModel.Diagonal.Sigmas(mag_sigma)))
+        values.insert(X(self.k), pose0)
+        values.insert(B(self.k), np.array([pr.gyro_bias.mean]))
+        values.insert(K(self.k), kin_mean)
+        values.insert(M(self.k), mag_mean)
+        drift = max(self.p.noise.gps_drift, 1e-3)
+        graph.add(gtsam.PriorFactorVector(G(self.k), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, drift)))
+        values.insert(G(self.k), np.zeros(2))
+        if m_avg is not None:
+            graph.add(F.mag_factor(self._mag_noise(n_recent), X(self.k), M(self.k), m_avg, self.h_en))
+            self.counters.mag_used += 1
+        t = self._t(self.k)
+        stamps = {X(self.k): t, B(self.k): t, K(self.k): t, M(self.k): t, G(self.k): t}
+        self.kin_walk = np.asarray(self.p.noise.kinematic_walk) * math.sqrt(self.dt)
+        self.mag_walk = np.asarray(self.p.noise.mag_walk) * math.sqrt(self.dt)
+        # Gauss-Markov drift of stationary std s and correlation time tau, as a random walk:
+        # its increments over dt have std s sqrt(2 dt / tau).
+        self.gps_walk = np.full(2, drift * math.sqrt(2.0 * self.dt / self.p.noise.gps_drift_tau))
+        self.smoother.update(graph, values, stamps)
+        self.result = self.smoother.calculateEstimate()
+        return True
+
+    # ---------------------------------------------------------------- updating
+    def update(self, now: float) -> Optional[Estimate]:
+        """Add every keyframe whose data is in (up to ``now``), solve, return the newest estimate."""
+        if self.smoother is None:
+            if not self._initialize(now):
+                self._trim(now)
+                return None
+        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+        created = 0
+        while self._t(self.k + 1) <= now + 1e-9 and self._covered(self._t(self.k + 1), now):
+            self._add_keyframe(graph, values, stamps)
+            created += 1
+        self._add_gps(graph, values)
+        self._add_mags(graph, values)
+        if created == 0 and graph.size() == 0:
+            return self._estimate()
+        t_new = self._t(self.k)
+        self.smoother.update(graph, values, stamps)
+        self.result = self.smoother.calculateEstimate()
+        try:
+            self.cov = np.asarray(self.smoother.marginalCovariance(X(self.k)))
+        except RuntimeError:
+            pass
+        self.oldest_k = max(self.oldest_k, int(math.ceil((t_new - self.p.lag) / self.dt)) + 1)
+        self._trim(now)
+        return self._estimate()
+
+    def _add_keyframe(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, stamps: Dict) -> None:
+        k0, k1 = self.k, self.k + 1
+        t0, t1 = self._t(k0), self._t(k1)
+        nz = self.p.noise
+        prev = self._pose(k0, values)
+        prev_b, kin, mag = self._vector(B(k0), values), self._vector(K(k0), values), self._vector(M(k0), values)
+        drift = self._vector(G(k0), values)
+        samples = self._samples(t0, t1) if self.p.use_odometry else []
+        if samples:
+            span = sum(dt for dt, _, _ in samples)
+            speed = sum(dt * v for dt, v, _ in samples) / span
+            handlebar = sum(dt * h for dt, _, h in samples) / span
+            (dx, dy, dth), _ = F.arc(span, speed, handlebar, kin, self.v.wheelbase, self.v.steering.ratio)
+            dist = abs(speed) * span * kin[0]
+            sxy = math.hypot(nz.odometry_xy, nz.odometry_xy_per_m * dist)
+            sth = math.hypot(nz.odometry_theta, nz.odometry_theta_per_m * dist)
+            graph.add(F.odometry_factor(gtsam.noiseModel.Diagonal.Sigmas(np.array([sxy, sxy, sth])), X(k0), X(k1),
+                                        K(k0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio))
+            guess = prev.compose(gtsam.Pose2(dx, dy, dth))
+            self.latest_speed = kin[0] * samples[-1][1]
+        else:
+            self.counters.intervals_without_odometry += 1
+            graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), gtsam.Pose2(),
+                                               gtsam.noiseModel.Diagonal.Sigmas(np.array(nz.no_odometry))))
+            guess = prev
+        dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
+        if dth_gyro is not None:
+            graph.add(F.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
+                                    X(k0), X(k1), B(k0), dth_gyro, self.dt))
+            self.latest_rate = dth_gyro / self.dt - float(prev_b[0])
+        else:
+            self.counters.intervals_without_gyro += 1
+        for key, value, sigmas in ((B, prev_b, [nz.gyro_bias_walk * math.sqrt(self.dt)]), (K, kin, self.kin_walk),
+                                   (M, mag, self.mag_walk), (G, drift, self.gps_walk)):
+            if key in (B, G) or self.p.calibrate:
+                graph.add(gtsam.BetweenFactorVector(key(k0), key(k1), np.zeros(len(value)),
+                                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))))
+            else:  # held: a tight prior on each copy (a chain of tight walks would be ill-conditioned)
+                mean, sigma = (self.held[0], self.held[1]) if key is K else (self.held[2], self.held[3])
+                graph.add(gtsam.PriorFactorVector(key(k1), mean, gtsam.noiseModel.Diagonal.Sigmas(sigma)))
+            values.insert(key(k1), value)
+            stamps[key(k1)] = t1
+        values.insert(X(k1), guess)
+        stamps[X(k1)] = t1
+        self.k = k1
+        self.counters.keyframes += 1
+
+    def _pose(self, k: int, values: gtsam.Values) -> Optional[gtsam.Pose2]:
+        """Current estimate of keyframe ``k``: from this update's new values or the solution."""
+        if values.exists(X(k)):
+            return values.atPose2(X(k))
+        return self.result.atPose2(X(k)) if self.result.exists(X(k)) else None
+
+    def _add_gps(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        if not self.p.use_gps:  # the first fix still places the start (see _initialize)
+            self.gps_pending.clear()
+            return
+        keep = []
+        for t, z, ve, vn in self.gps_pending:
+            k = int(round(t / self.dt))
+            if k > self.k:
+                keep.append((t, z, ve, vn))  # its keyframe does not exist yet
+                continue
+            if k < self.oldest_k:
+                self.counters.gps_too_old += 1
+                continue
+            pose = self._pose(k, values)
+            if pose is None:
+                self.counters.gps_too_old += 1
+                continue
+            # Move the fix to the keyframe's time along the current motion (|dt| <= half a period).
+            dt = t - self._t(k)
+            zc = z - self.latest_speed * dt * np.array([math.cos(pose.theta()), math.sin(pose.theta())])
+            drift = self._vector(G(k), values)
+            if self._gate(t, pose, zc - drift, ve, vn):
+                # The drift is a state: the factor keeps only the white part of the fix's variance.
+                floor, d2 = self.p.noise.gps_floor ** 2, self.p.noise.gps_drift ** 2
+                sigmas = np.sqrt([max(ve - d2, floor), max(vn - d2, floor)])
+                noise = gtsam.noiseModel.Robust.Create(
+                    gtsam.noiseModel.mEstimator.Huber.Create(self.p.noise.gps_huber),
+                    gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+                graph.add(F.gps_factor(noise, X(k), G(k), zc, self.lever))
+                self.counters.gps_used += 1
+        self.gps_pending = keep
+
+    def _gate(self, t: float, pose: gtsam.Pose2, z: np.ndarray, ve: float, vn: float) -> bool:
+        """Accept a fix unless, with a settled estimate, it is implausibly far from it."""
+        if not self.settled:
+            self.settled = self.counters.gps_used >= 20
+            return True
+        innovation = z - F.gps_antenna(pose, self.lever)
+        c, s = math.cos(pose.theta()), math.sin(pose.theta())
+        R = np.array([[c, -s], [s, c]])
+        J = np.hstack([R, (R @ np.array([-self.lever[1], self.lever[0]]))[:, None]])  # d antenna / d xi
+        S = J @ self.cov @ J.T + np.diag([ve, vn])
+        d2 = float(innovation @ np.linalg.solve(S, innovation))
+        if d2 <= self.p.noise.gps_gate:
+            self.rejecting_since = None
+            return True
+        if self.rejecting_since is None:
+            self.rejecting_since = t
+        if t - self.rejecting_since > self.GATE_YIELD:  # lost, not misled: let the fixes back in
+            self.rejecting_since = None
+            return True
+        self.counters.gps_rejected += 1
+        return False
+
+    def _add_mags(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        """One factor per ``1 / mag_rate`` s slot: the mean of its readings, on the keyframe
+        nearest the slot's centre. A magnetometer's error is mostly model error (tilt,
+        the vehicle's currents, soft iron not quite linear) that stays put for seconds: 20
+        independent factors a second would claim a precision the readings do not have,
+        and that false precision, once marginalised, drags the weakly observable
+        heading/hard-iron pair along with every small inconsistency."""
+        if not self.p.use_mag:
+            self.mags.clear()
+            return
+        period = 1.0 / self.p.mag_rate
+        t_done = self._t(self.k) - self.dt  # readings up to here have arrived (latency < one period)
+        while self.mags:
+            j = int(math.floor(self.mags[0][0] / period + 0.5))
+            if (j + 0.5) * period > t_done:
+                break
+            ms = []
+            while self.mags and int(math.floor(self.mags[0][0] / period + 0.5)) == j:
+                ms.append(self.mags.popleft()[1:])
+            k = int(round(j * period / self.dt))
+            if k < self.oldest_k or not (values.exists(M(k)) or self.result.exists(M(k))):
+                continue
+            if self._at_rest((j - 0.5) * period, (j + 0.5) * period):
+                # Standing still, the magnetometer sees the same field with the same error:
+                # one factor per stop, not one per slot (the rest would be false information).
+                if self.mag_at_rest:
+                    self.counters.mag_skipped_at_rest += 1
+                    continue
+                self.mag_at_rest = True
+            else:
+                self.mag_at_rest = False
+            graph.add(F.mag_factor(self._mag_noise(len(ms)), X(k), M(k), np.mean(ms, axis=0), self.h_en))
+            self.counters.mag_used += 1
+
+    def _at_rest(self, t0: float, t1: float) -> bool:
+        """Whether the wheel speed stayed below ``REST_SPEED`` over ``[t0, t1]`` (false without odometry)."""
+        if not self.p.use_odometry or not self.states or self.states[-1][0] < t1:
+            return False
+        inside = [abs(v) for t, v, _ in self.states if t0 - 0.1 <= t <= t1]
+        return bool(inside) and max(inside) < self.REST_SPEED
+
+    def _mag_noise(self, n_readings: int):
+        n = self.p.noise
+        sigma = math.sqrt(n.mag ** 2 + n.mag_white ** 2 / max(1, n_readings))
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(n.mag_huber),
+                                              gtsam.noiseModel.Isotropic.Sigma(2, sigma))
+
+    def _trim(self, now: float) -> None:
+        """Forget sensor data older than the window."""
+        horizon = now - self.p.lag - 1.0
+        while len(self.states) > 2 and self.states[1][0] < horizon:
+            self.states.popleft()
+        while len(self.gyro) > 2 and self.gyro[1][0] < horizon:
+            self.gyro.popleft()
+        while self.mags and self.mags[0][0] < horizon:
+            self.mags.popleft()
+        self.gps_pending = [g for g in self.gps_pending if g[0] >= horizon]
+
+    # ---------------------------------------------------------------- output
+    def _estimate(self) -> Optional[Estimate]:
+        if self.k is None or not self.result.exists(X(self.k)):
+            return None
+        pose = self.result.atPose2(X(self.k))
+        kin, mag = self.result.atVector(K(self.k)), self.result.atVector(M(self.k))
+        bias = float(self.result.atVector(B(self.k))[0])
+        # GTSAM's Pose2 covariance is in the body-frame tangent space: rotate to map axes.
+        c, s = math.cos(pose.theta()), math.sin(pose.theta())
+        Rb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        cov = Rb @ self.cov @ Rb.T
+        calib = dict(zip(CALIBRATION_NAMES, [float(kin[0]), float(kin[1]), float(kin[2]), bias] +
+                         [float(m) for m in mag]))
+        return Estimate(self._t(self.k), pose.x(), pose.y(), pose.theta(), self.z or 0.0, self.leveller.roll,
+                        self.leveller.pitch, cov,
+                        self.latest_speed, self.latest_rate, calib)
+
+    def calibration_sigma(self) -> Dict[str, float]:
+        """Standard deviations of the calibration (marginal covariances: call at a low rate)."""
+        if self.smoother is None:
+            return {}
+        try:
+            ck = np.sqrt(np.diag(self.smoother.marginalCovariance(K(self.k))))
+            cm = np.sqrt(np.diag(self.smoother.marginalCovariance(M(self.k))))
+            cb = math.sqrt(self.smoother.marginalCovariance(B(self.k))[0, 0])
+        except RuntimeError:
+            return {}
+        return dict(zip(CALIBRATION_NAMES, [float(ck[0]), float(ck[1]), float(ck[2]), cb] + [float(v) for v in cm]))
+

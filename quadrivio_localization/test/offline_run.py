@@ -1,0 +1,76 @@
+"""Test helper: drive the simulator core open-loop and feed its noisy sensors to a Localizer.
+
+Not a test module itself (no test_ prefix): imported by the localization tests.
+"""
+import math
+
+import numpy as np
+
+from quadrivio_description.config import load_dataclass
+from quadrivio_description.site import load_site
+from quadrivio_description.urdf import build_urdf
+from quadrivio_description.vehicle import load_vehicle
+from quadrivio_localization.smoother import Localizer, LocalizerParams
+from quadrivio_sim.actuators import load_actuators
+from quadrivio_sim.noise import GpsNoise, ImuNoise, MagNoise
+from quadrivio_sim.paths import package_file
+from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams, MagAdapterParams
+from quadrivio_sim.script import ScriptRow, SetpointScript
+from quadrivio_sim.simulator import SimParams, Simulator
+from quadrivio_sim.world import quat_to_rpy
+
+
+def wandering_script(seconds):
+    rows = [ScriptRow(0.0, 0.0, 0.0, 0.0), ScriptRow(2.0, 2.5, 0.0, 0.0)]
+    rows += [ScriptRow(4.0 + 4.0 * k, 2.5, 0.25 * math.sin(0.6 * k) + 0.1, 0.0) for k in range(int(seconds / 4))]
+    return SetpointScript(rows)
+
+
+def resting_script(seconds):
+    return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0)])
+
+
+def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
+        script=wandering_script):
+    """Returns (errors array of [t, position error, heading error, heading sigma], localizer, last estimate)."""
+    v, site = load_vehicle(), load_site()
+    frame = site.local_frame()
+    sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
+    sim.script = script(seconds)
+    rng = np.random.default_rng(seed)
+    gp = load_dataclass(GpsAdapterParams, package_file("config", "gps.yaml"))
+    noise = gp.noise if gps_changes is None else gps_changes(gp.noise)
+    gps = GpsNoise(noise, rng)
+    imu = ImuNoise(load_dataclass(ImuAdapterParams, package_file("config", "imu.yaml")).noise, rng, 0.01)
+    mag = MagNoise(load_dataclass(MagAdapterParams, package_file("config", "mag.yaml")).noise, rng)
+    loc = Localizer(params or LocalizerParams(), v, site)
+    errors, gt, est = [], None, None
+    while sim.t < seconds - 1e-9:
+        for name, s in sim.step():
+            if name == "ground_truth":
+                gt = s
+            elif name == "plc_state":
+                loc.add_vehicle_state(s.plc_time, s.wheel_speed * speed_scale, s.handlebar + handlebar_offset)
+            elif name == "imu":
+                f, w = imu.apply(s.specific_force, s.angular_rate)
+                loc.add_imu(s.stamp, tuple(f), (w[0], w[1], w[2] + gyro_bias))
+            elif name == "mag":
+                loc.add_mag(s.stamp, tuple(mag.apply(s.field)))
+            elif name == "gps":
+                r = gps.apply(s.stamp, s.position, s.velocity)
+                if r.position is None:
+                    loc.add_gps(s.stamp, math.nan, math.nan, math.nan, math.nan, math.nan, -1)
+                else:
+                    lat, lon, alt = frame.enu_to_lla(*r.position)
+                    loc.add_gps(s.stamp, lat, lon, alt, r.variances[0], r.variances[1], r.status)
+        if sim.steps % 5 == 0:
+            e = loc.update(sim.t)
+            if e is not None:
+                est = e
+                if gt is not None and abs(gt.stamp - e.stamp) < 1e-6:
+                    yaw = quat_to_rpy(gt.orientation)[2]
+                    errors.append((e.stamp, math.hypot(e.x - gt.position[0], e.y - gt.position[1]),
+                                   math.degrees(math.remainder(e.theta - yaw, 2 * math.pi)),
+                                   math.degrees(math.sqrt(e.covariance[2, 2]))))
+    sim.close()
+    return np.array(errors), loc, est
