@@ -1,0 +1,162 @@
+"""Run metrics (the ``metrics.json`` contract), from time series of a run.
+
+Errors are horizontal, against the ground truth interpolated at each estimate's stamp
+(linear in position, along the shortest arc in heading). The cross-track error is the
+ground-truth position's distance to the reference path (segment-exact), over the part
+of the run after the path was received and before the follower finished. A key that
+cannot be computed (no ground truth in a real bag, no GPS...) is ``None``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, Optional
+
+import numpy as np
+
+CONTRACT_KEYS = ("scenario", "seed", "completed", "sim_duration_s", "wall_duration_s", "rtf", "loc_rmse_m",
+                 "loc_p95_m", "loc_max_m", "loc_heading_rmse_deg", "pred_rmse_m", "gps_rmse_m", "gps_fix_fraction",
+                 "xte_rmse_m", "xte_max_m", "max_lateral_accel_mps2")
+
+
+@dataclass
+class Series:
+    """Arrays of one kind of message, in time order."""
+    t: np.ndarray
+    cols: Dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self.cols[key]
+
+    @staticmethod
+    def empty() -> "Series":
+        return Series(np.zeros(0))
+
+
+@dataclass
+class RunData:
+    ground_truth: Series  # t, x, y, yaw, vx (body), wz
+    estimate: Series  # localization/odom: t, x, y, yaw
+    predicted: Series  # localization/predicted: t, x, y, yaw
+    gps: Series  # t, e, n (ENU of the fix), status
+    path: Optional[np.ndarray]  # N x 2 reference path
+    status: Series  # follower/status: t, status, progress
+    lever: tuple = (0.0, 0.0)  # GPS antenna in base_link (x, y)
+    setpoint: Series = field(default_factory=Series.empty)  # vehicle/setpoint/auto: t, speed, handlebar
+    vehicle: Series = field(default_factory=Series.empty)  # vehicle/state: t, speed, handlebar
+    calibration: Series = field(default_factory=Series.empty)  # localization/calibration: t, <name>...
+
+
+def _interp_pose(gt: Series, t: np.ndarray):
+    """Ground truth x, y, yaw at times ``t`` (inside the ground truth's span only)."""
+    inside = (t >= gt.t[0]) & (t <= gt.t[-1])
+    yaw = np.unwrap(gt["yaw"])
+    return (inside, np.interp(t, gt.t, gt["x"]), np.interp(t, gt.t, gt["y"]), np.interp(t, gt.t, yaw))
+
+
+def _stats(errors: np.ndarray):
+    if len(errors) == 0:
+        return None, None, None
+    return (float(np.sqrt(np.mean(errors ** 2))), float(np.percentile(errors, 95)), float(np.max(errors)))
+
+
+def position_errors(gt: Series, est: Series) -> Optional[np.ndarray]:
+    """Per-estimate ``[t, horizontal error, heading error (rad)]``."""
+    if len(gt) < 2 or len(est) == 0:
+        return None
+    inside, x, y, yaw = _interp_pose(gt, est.t)
+    if not inside.any():
+        return None
+    e = np.hypot(est["x"] - x, est["y"] - y)
+    h = np.arctan2(np.sin(est["yaw"] - yaw), np.cos(est["yaw"] - yaw))
+    return np.column_stack([est.t, e, h])[inside]
+
+
+def gps_errors(gt: Series, gps: Series, lever) -> Optional[np.ndarray]:
+    """Per-fix ``[t, horizontal error]`` of the fixes that claim a fix, against the true antenna."""
+    if len(gt) < 2 or len(gps) == 0:
+        return None
+    ok = gps["status"] >= 0
+    t = gps.t[ok]
+    inside, x, y, yaw = _interp_pose(gt, t)
+    ax = x + np.cos(yaw) * lever[0] - np.sin(yaw) * lever[1]
+    ay = y + np.sin(yaw) * lever[0] + np.cos(yaw) * lever[1]
+    e = np.hypot(gps["e"][ok] - ax, gps["n"][ok] - ay)
+    return np.column_stack([t, e])[inside]
+
+
+def cross_track(gt: Series, path: Optional[np.ndarray], t0: float, t1: float) -> Optional[np.ndarray]:
+    """``[t, distance to the path]`` of the ground truth between ``t0`` and ``t1``."""
+    if path is None or len(path) < 2 or len(gt) == 0:
+        return None
+    m = (gt.t >= t0) & (gt.t <= t1)
+    if not m.any():
+        return None
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    denom = np.maximum((ab ** 2).sum(1), 1e-12)
+    out = []
+    for t, x, y in zip(gt.t[m], gt["x"][m], gt["y"][m]):
+        u = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / denom, 0.0, 1.0)
+        d = np.min((a[:, 0] + u * ab[:, 0] - x) ** 2 + (a[:, 1] + u * ab[:, 1] - y) ** 2)
+        out.append((t, math.sqrt(d)))
+    return np.array(out)
+
+
+def following_window(status: Series, default: tuple) -> tuple:
+    """From the first FOLLOWING status to the first DONE/ABORTED (or the default span)."""
+    if len(status) == 0:
+        return default
+    st = status["status"]
+    following = np.flatnonzero(st == 1)
+    t0 = status.t[following[0]] if len(following) else default[0]
+    ended = np.flatnonzero((st == 2) | (st == 3))
+    t1 = status.t[ended[0]] if len(ended) else default[1]
+    return t0, t1
+
+
+def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = None,
+            wall_duration: Optional[float] = None) -> Dict[str, object]:
+    gt = run.ground_truth
+    m: Dict[str, object] = {k: None for k in CONTRACT_KEYS}
+    m["scenario"], m["seed"] = scenario, seed
+    spans = [s.t for s in (gt, run.estimate, run.status) if len(s)]
+    if spans:
+        t_first = min(float(s[0]) for s in spans)
+        t_last = max(float(s[-1]) for s in spans)
+        m["sim_duration_s"] = t_last - t_first
+    if wall_duration:
+        m["wall_duration_s"] = wall_duration
+        if m["sim_duration_s"]:
+            m["rtf"] = float(m["sim_duration_s"]) / wall_duration
+    st = run.status
+    m["completed"] = bool(len(st) and np.any(st["status"] == 2))
+    pe = position_errors(gt, run.estimate)
+    if pe is not None:
+        m["loc_rmse_m"], m["loc_p95_m"], m["loc_max_m"] = _stats(pe[:, 1])
+        m["loc_heading_rmse_deg"] = math.degrees(float(np.sqrt(np.mean(pe[:, 2] ** 2))))
+        settled = pe[pe[:, 0] >= pe[0, 0] + 10.0]
+        if len(settled):
+            m["loc_rmse_after_10s_m"] = float(np.sqrt(np.mean(settled[:, 1] ** 2)))
+            m["loc_heading_rmse_after_10s_deg"] = math.degrees(float(np.sqrt(np.mean(settled[:, 2] ** 2))))
+    pp = position_errors(gt, run.predicted)
+    if pp is not None:
+        m["pred_rmse_m"] = _stats(pp[:, 1])[0]
+    if len(run.gps):
+        m["gps_fix_fraction"] = float(np.mean(run.gps["status"] >= 0))
+        ge = gps_errors(gt, run.gps, run.lever)
+        if ge is not None and len(ge):
+            m["gps_rmse_m"] = _stats(ge[:, 1])[0]
+    if len(gt):
+        t0, t1 = following_window(st, (float(gt.t[0]), float(gt.t[-1])))
+        xt = cross_track(gt, run.path, t0, t1)
+        if xt is not None and len(xt):
+            m["xte_rmse_m"] = float(np.sqrt(np.mean(xt[:, 1] ** 2)))
+            m["xte_max_m"] = float(np.max(xt[:, 1]))
+        lat = np.abs(gt["vx"] * gt["wz"])  # a_y = v omega for the rear axle centre
+        m["max_lateral_accel_mps2"] = float(np.max(lat)) if len(lat) else None
+    return m

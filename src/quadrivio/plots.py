@@ -1,0 +1,146 @@
+"""Plots of a run (PNG): trajectory (paper Figs. 6 and 7), errors, control, calibration."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Dict, List
+
+import numpy as np
+
+from .metrics import RunData, cross_track, following_window, gps_errors, position_errors
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def trajectory(run: RunData, path: str, title: str) -> None:
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7.5, 7.5))
+    if run.path is not None:
+        ax.plot(run.path[:, 0], run.path[:, 1], "k--", lw=1.2, label="reference path")
+    if len(run.ground_truth):
+        ax.plot(run.ground_truth["x"], run.ground_truth["y"], color="tab:green", lw=0.8, alpha=0.8,
+                label="ground truth")
+    if len(run.estimate):
+        ax.plot(run.estimate["x"], run.estimate["y"], color="tab:blue", lw=1.5, label="localization estimate")
+    if len(run.gps):
+        ok = run.gps["status"] >= 0
+        ax.plot(run.gps["e"][ok], run.gps["n"][ok], "x", color="tab:red", ms=4, mew=0.8, label="GPS fixes")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def errors(run: RunData, path: str, title: str) -> bool:
+    pe = position_errors(run.ground_truth, run.estimate)
+    if pe is None:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    t0 = pe[0, 0]
+    axes[0].plot(pe[:, 0] - t0, pe[:, 1], color="tab:blue", lw=1, label="localization")
+    pp = position_errors(run.ground_truth, run.predicted)
+    if pp is not None:
+        axes[0].plot(pp[:, 0] - t0, pp[:, 1], color="tab:purple", lw=0.6, alpha=0.7, label="predictor (50 Hz)")
+    ge = gps_errors(run.ground_truth, run.gps, run.lever)
+    if ge is not None and len(ge):
+        axes[0].plot(ge[:, 0] - t0, ge[:, 1], "x", color="tab:red", ms=3, label="GPS fix")
+    axes[0].set_ylabel("position error [m]")
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[1].plot(pe[:, 0] - t0, np.degrees(pe[:, 2]), color="tab:blue", lw=1)
+    axes[1].set_ylabel("heading error [deg]")
+    span = following_window(run.status, (float(run.ground_truth.t[0]), float(run.ground_truth.t[-1])))
+    xt = cross_track(run.ground_truth, run.path, *span)
+    if xt is not None:
+        axes[2].plot(xt[:, 0] - t0, xt[:, 1], color="tab:green", lw=1)
+    axes[2].set_ylabel("cross-track error [m]")
+    axes[2].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def control(run: RunData, path: str, title: str) -> bool:
+    if not len(run.vehicle):
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
+    t0 = run.vehicle.t[0]
+    for ax, key, unit in ((axes[0], "speed", "m/s"), (axes[1], "handlebar", "rad")):
+        if len(run.setpoint):
+            ax.plot(run.setpoint.t - t0, run.setpoint[key], "k--", lw=1, label="setpoint (follower)")
+        ax.plot(run.vehicle.t - t0, run.vehicle[key], color="tab:blue", lw=1, label="measured (PLC)")
+        ax.set_ylabel(f"{key} [{unit}]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[1].set_xlabel("time [s]")
+    axes[0].set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+CALIBRATION_PLOTS = (("wheel_speed_scale", "wheel speed scale [1]"), ("handlebar_offset", "handlebar offset [rad]"),
+                     ("steering_gain", "steering gain [1]"), ("gyro_bias", "gyro bias [rad/s]"),
+                     ("mag_hard_iron_x", "hard iron x [uT]"), ("mag_hard_iron_y", "hard iron y [uT]"))
+
+
+def calibration(run: RunData, path: str, title: str) -> bool:
+    c = run.calibration
+    if len(c) < 2:
+        return False
+    plt = _plt()
+    fig, axes = plt.subplots(3, 2, figsize=(10, 7), sharex=True)
+    t0 = c.t[0]
+    for ax, (key, label) in zip(axes.ravel(), CALIBRATION_PLOTS):
+        ax.plot(c.t - t0, c[key], color="tab:blue", lw=1)
+        sd = c.cols.get(key + "_sigma")
+        if sd is not None:
+            ax.fill_between(c.t - t0, c[key] - 2 * sd, c[key] + 2 * sd, color="tab:blue", alpha=0.2, lw=0)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(True, alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
+    fig.suptitle(title + " (band: 2 sigma)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def all_plots(run: RunData, out_dir: str, title: str) -> List[str]:
+    made = []
+    trajectory(run, os.path.join(out_dir, "trajectory.png"), title)
+    made.append("trajectory.png")
+    for name, fn in (("errors.png", errors), ("control.png", control), ("calibration.png", calibration)):
+        if fn(run, os.path.join(out_dir, name), title):
+            made.append(name)
+    return made
+
+
+def format_metrics(m: Dict[str, object]) -> List[str]:
+    out = []
+    for k, v in m.items():
+        if isinstance(v, float):
+            out.append(f"  {k:32s} {v:.4g}" if math.isfinite(v) else f"  {k:32s} {v}")
+        else:
+            out.append(f"  {k:32s} {v}")
+    return out
+
+

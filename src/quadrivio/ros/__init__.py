@@ -1,0 +1,1 @@
+"""ROS wiring of the bringup package: experiment runner, bag analysis."""

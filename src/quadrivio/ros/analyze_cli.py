@@ -1,0 +1,58 @@
+"""``rosrun quadrivio analyze BAG --out DIR``: metrics.json and plots for any run's bag.
+
+Simulated or real: what needs the ground truth (localization, prediction, GPS and
+cross-track errors) is ``null`` in a real bag. A ``run_info.json`` next to the bag (written
+by ``experiment``) supplies the scenario, the seed and the wall duration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from typing import List, Optional
+
+from quadrivio_description.config import ConfigError
+from quadrivio_description.site import load_site
+from quadrivio_description.vehicle import load_vehicle
+
+from .. import metrics as M
+from ..plots import all_plots, format_metrics
+from .bag import BagError, read_run
+
+
+def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False) -> dict:
+    site, vehicle = load_site(site_file), load_vehicle(vehicle_file)
+    run = read_run(bag, site, vehicle)
+    info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
+    info = {}
+    if os.path.isfile(info_path):
+        with open(info_path) as fh:
+            info = json.load(fh)
+    m = M.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"))
+    os.makedirs(out, exist_ok=True)
+    with open(os.path.join(out, "metrics.json"), "w") as fh:
+        json.dump(m, fh, indent=2)
+        fh.write("\n")
+    title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
+    made = all_plots(run, out, title)
+    if not quiet:
+        print("\n".join(["[analyze] metrics:"] + format_metrics(m)))
+        print(f"[analyze] wrote {os.path.join(out, 'metrics.json')} and {', '.join(made)}")
+    return m
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    p = argparse.ArgumentParser(prog="analyze", description=__doc__.split("\n\n")[0])
+    p.add_argument("bag")
+    p.add_argument("--out", required=True, help="folder for metrics.json and the plots")
+    p.add_argument("--site", default="", help="site YAML with the GPS datum (default: quadrivio_description's)")
+    p.add_argument("--vehicle", default="", help="vehicle YAML (default: quadrivio_description's)")
+    args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
+    try:
+        analyze(args.bag, args.out, args.site, args.vehicle)
+    except (BagError, ConfigError) as exc:
+        print(f"analyze: {exc}", file=sys.stderr)
+        return 2
+    return 0

@@ -1,0 +1,110 @@
+"""Reading a run's bag into :class:`quadrivio.metrics.RunData` (the bag's own message
+definitions are enough: no generated classes are needed)."""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Dict, List
+
+import numpy as np
+
+from quadrivio_description.site import SiteParams
+from quadrivio_description.vehicle import VehicleParams
+
+from ..metrics import RunData, Series
+
+TOPICS = {
+    "ground_truth": "/ground_truth/odom",
+    "estimate": "/localization/odom",
+    "predicted": "/localization/predicted",
+    "gps": "/gps/fix",
+    "path": "/planner/path",
+    "status": "/follower/status",
+    "setpoint": "/vehicle/setpoint/auto",
+    "vehicle": "/vehicle/state",
+    "calibration": "/localization/calibration",
+}
+RECORD = sorted(set(TOPICS.values()) | {"/imu/data", "/imu/mag", "/gps/vel", "/safety/rollover", "/tf", "/tf_static",
+                                        "/diagnostics", "/rosout_agg", "/clock", "/joint_states", "/scan/front",
+                                        "/scan/rear"})
+CALIBRATION_FIELDS = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias")
+
+
+class BagError(ValueError):
+    pass
+
+
+def _yaw(q) -> float:
+    return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+
+
+def _series(rows: List[tuple], names: tuple) -> Series:
+    if not rows:
+        return Series.empty()
+    a = np.array(rows, dtype=float)
+    order = np.argsort(a[:, 0], kind="stable")
+    a = a[order]
+    return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+
+
+def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
+    import rosbag
+
+    if not os.path.isfile(path):
+        raise BagError(f"{path}: file not found")
+    try:
+        bag = rosbag.Bag(path)
+    except rosbag.bag.ROSBagUnindexedException as exc:
+        raise BagError(f"{path}: the bag has no index (recording was cut short); run 'rosbag reindex {path}' "
+                       "and try again") from exc
+    except (rosbag.ROSBagException, OSError, ValueError) as exc:
+        raise BagError(f"{path}: not a readable bag ({exc})") from exc
+    frame = site.local_frame()
+    rows: Dict[str, List[tuple]] = {k: [] for k in TOPICS}
+    path_xy = None
+    by_topic = {v: k for k, v in TOPICS.items()}
+    with bag:
+        try:
+            for topic, m, _ in bag.read_messages(topics=list(TOPICS.values())):
+                kind = by_topic[topic]
+                if kind == "path":
+                    path_xy = np.array([(p.pose.position.x, p.pose.position.y) for p in m.poses]) if m.poses else None
+                    continue
+                t = m.header.stamp.to_sec()
+                if kind in ("ground_truth", "estimate", "predicted"):
+                    p = m.pose.pose
+                    rows[kind].append((t, p.position.x, p.position.y, _yaw(p.orientation), m.twist.twist.linear.x,
+                                       m.twist.twist.angular.z))
+                elif kind == "gps":
+                    if m.status.status >= 0 and all(map(math.isfinite, (m.latitude, m.longitude, m.altitude))):
+                        e, n, _ = frame.lla_to_enu(m.latitude, m.longitude, m.altitude)
+                    else:
+                        e = n = math.nan
+                    rows[kind].append((t, e, n, m.status.status))
+                elif kind == "status":
+                    rows[kind].append((t, m.status, m.progress, m.cross_track))
+                elif kind == "setpoint":
+                    rows[kind].append((t, m.speed, m.handlebar))
+                elif kind == "vehicle":
+                    rows[kind].append((t, m.wheel_speed, m.handlebar))
+                elif kind == "calibration":
+                    rows[kind].append((t, *(getattr(m, f) for f in CALIBRATION_FIELDS), m.mag_hard_iron[0] * 1e6,
+                                       m.mag_hard_iron[1] * 1e6, *m.sigma[:4], m.sigma[4] * 1e6, m.sigma[5] * 1e6))
+        except rosbag.ROSBagException as exc:
+            raise BagError(f"{path}: corrupt bag ({exc})") from exc
+    pose_cols = ("x", "y", "yaw", "vx", "wz")
+    cal_cols = CALIBRATION_FIELDS + ("mag_hard_iron_x", "mag_hard_iron_y") + tuple(
+        f + "_sigma" for f in CALIBRATION_FIELDS + ("mag_hard_iron_x", "mag_hard_iron_y"))
+    return RunData(
+        ground_truth=_series(rows["ground_truth"], pose_cols),
+        estimate=_series(rows["estimate"], pose_cols),
+        predicted=_series(rows["predicted"], pose_cols),
+        gps=_series(rows["gps"], ("e", "n", "status")),
+        path=path_xy,
+        status=_series(rows["status"], ("status", "progress", "cross_track")),
+        lever=tuple(vehicle.sensors["gps_link"].xyz[:2]),
+        setpoint=_series(rows["setpoint"], ("speed", "handlebar")),
+        vehicle=_series(rows["vehicle"], ("speed", "handlebar")),
+        calibration=_series(rows["calibration"], cal_cols),
+    )

@@ -1,0 +1,225 @@
+"""``rosrun quadrivio experiment SCENARIO --out DIR [--rtf X] [--seed N]``: one run, headless.
+
+1. validates the scenario (every section against the nodes' own parameter classes);
+2. starts a private ROS master and ``sim.launch`` with the simulator paused, the PLC
+   asked for the scenario's mode, logs in ``DIR/logs``;
+3. records ``DIR/run.bag`` and unpauses once the recorder is subscribed;
+4. reports progress until the follower is done or aborts, the scenario's time limit,
+   or a required node dies;
+5. stops everything cleanly, then writes ``DIR/metrics.json``, ``DIR/run_info.json`` and
+   the plots (``trajectory.png``, ``errors.png``, ``control.png``, ``calibration.png``).
+
+Exit status: 0 completed, 1 ran but did not complete, 2 bad input or failure to start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import xmlrpc.client
+from typing import List, Optional
+
+from quadrivio_description.config import ConfigError
+
+from ..scenario import load_scenario
+from .analyze_cli import analyze
+from .bag import RECORD, BagError
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Runner:
+    def __init__(self, args) -> None:
+        self.args = args
+        self.scenario = load_scenario(args.scenario)
+        self.out = os.path.abspath(args.out)
+        self.rtf = args.rtf if args.rtf is not None else self.scenario.run.rtf
+        self.seed = args.seed if args.seed is not None else self.scenario.seed
+        self.procs: List[subprocess.Popen] = []
+        self.status = None
+        self.last_status_wall = None
+
+    def log(self, text: str) -> None:
+        print(f"[experiment {dt.datetime.now().strftime('%H:%M:%S')}] {text}", flush=True)
+
+    # ------------------------------------------------------------------ setup
+    def prepare(self) -> None:
+        os.makedirs(self.out, exist_ok=True)
+        for name in ("run.bag", "run.bag.active", "metrics.json", "run_info.json", "trajectory.png", "errors.png",
+                     "control.png", "calibration.png"):
+            if os.path.exists(os.path.join(self.out, name)):
+                os.remove(os.path.join(self.out, name))
+        shutil.rmtree(os.path.join(self.out, "logs"), ignore_errors=True)
+        os.makedirs(os.path.join(self.out, "logs"))
+        self.port = _free_port()
+        self.env = dict(os.environ, ROS_MASTER_URI=f"http://127.0.0.1:{self.port}",
+                        ROS_LOG_DIR=os.path.join(self.out, "logs"))
+        os.environ.update({"ROS_MASTER_URI": self.env["ROS_MASTER_URI"], "ROS_LOG_DIR": self.env["ROS_LOG_DIR"]})
+
+    def _spawn(self, cmd: List[str], log: str) -> subprocess.Popen:
+        fh = open(os.path.join(self.out, "logs", log), "w")
+        p = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT, env=self.env, start_new_session=True)
+        self.procs.append(p)
+        return p
+
+    def start(self) -> None:
+        run = self.scenario.run
+        self.log(f"scenario {self.scenario.name} (seed {self.seed}, real-time factor {self.rtf:g}): "
+                 f"{self.scenario.description}")
+        self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
+                                   f"scenario_file:={self.scenario.path}", f"rtf:={self.rtf}", f"seed:={self.seed}",
+                                   f"initial_mode:={run.initial_mode}", f"gps_nmea:={str(run.gps_nmea).lower()}",
+                                   "start_paused:=true"], "roslaunch.log")
+        master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
+        self._wait(lambda: self._has_topic(master, "/clock") and self._has_service(master, "/simulator/unpause"),
+                   120, "the simulator")
+        self.bag = self._spawn(["rosbag", "record", "--lz4", "-O", os.path.join(self.out, "run.bag"), *RECORD],
+                               "rosbag.log")
+        self._wait(lambda: self._recording(master), 60, "the recorder")
+        import rospy
+        from std_srvs.srv import Trigger
+
+        from quadrivio_navigation.msg import FollowerStatus
+
+        rospy.init_node("experiment", disable_signals=True)
+        rospy.Subscriber("/follower/status", FollowerStatus, self._on_status, queue_size=10)
+        rospy.wait_for_service("/simulator/unpause", timeout=30)
+        self.wall0 = time.monotonic()
+        rospy.ServiceProxy("/simulator/unpause", Trigger)()
+        self.log(f"running (logs in {os.path.relpath(os.path.join(self.out, 'logs'))})")
+
+    def _wait(self, cond, timeout: float, what: str) -> None:
+        deadline = time.monotonic() + timeout
+        while not cond():
+            if self.launch.poll() is not None:
+                raise RuntimeError(f"roslaunch exited while waiting for {what}; see "
+                                   f"{os.path.join(self.out, 'logs', 'roslaunch.log')}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"timed out waiting for {what}")
+            threading.Event().wait(0.2)
+
+    @staticmethod
+    def _system(master):
+        try:
+            return master.getSystemState("/experiment")[2]
+        except OSError:
+            return None
+
+    def _has_topic(self, master, topic: str) -> bool:
+        st = self._system(master)
+        return bool(st) and any(t == topic for t, _ in st[0])
+
+    def _has_service(self, master, service: str) -> bool:
+        st = self._system(master)
+        return bool(st) and any(s == service for s, _ in st[2])
+
+    def _recording(self, master) -> bool:
+        st = self._system(master)
+        return bool(st) and any(t == "/ground_truth/odom" and any(n.startswith("/record") for n in nodes)
+                                for t, nodes in st[1])
+
+    def _on_status(self, m) -> None:
+        self.status = m
+
+    # ------------------------------------------------------------------- loop
+    def run(self) -> str:
+        import rospy
+
+        run = self.scenario.run
+        last_report = 0.0
+        outcome = "time limit"
+        t_start = None
+        while True:
+            threading.Event().wait(0.2)
+            now = rospy.get_time()
+            t_start = now if t_start is None and now > 0 else t_start
+            st = self.status
+            wall = time.monotonic() - self.wall0
+            if self.launch.poll() is not None:
+                outcome = "a node died (see logs/roslaunch.log)"
+                break
+            if run.end == "path_done" and st is not None and st.status in (st.DONE, st.ABORTED):
+                outcome = "completed" if st.status == st.DONE else f"aborted: {st.reason}"
+                break
+            if now >= run.max_duration:
+                outcome = "completed" if run.end == "duration" else "time limit"
+                break
+            if self.args.wall_timeout and wall > self.args.wall_timeout:
+                outcome = "wall-clock limit"
+                break
+            if wall - last_report >= 5.0:
+                last_report = wall
+                prog = f"{100 * st.progress:.0f} % of the path, {['waiting', 'following', 'done', 'aborted'][st.status]}" \
+                    if st is not None else "no path yet"
+                self.log(f"sim t = {now:6.1f} s, {prog}, real-time factor {now / max(wall, 1e-3):.2f}")
+        self.wall_duration = time.monotonic() - self.wall0
+        return outcome
+
+    def stop(self) -> None:
+        for p in reversed(self.procs):  # the recorder first: it closes the bag on SIGINT
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+                try:
+                    p.wait(timeout=30)
+                except subprocess.TimeoutExpired:
+                    os.killpg(p.pid, signal.SIGKILL)
+                    p.wait()
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    p = argparse.ArgumentParser(prog="experiment", description=__doc__.split("\n\n")[0])
+    p.add_argument("scenario", help="a name from quadrivio/scenarios/ or a path to a scenario YAML")
+    p.add_argument("--out", required=True, help="output folder (run.bag, metrics.json, plots, logs)")
+    p.add_argument("--rtf", type=float, default=None, help="real-time factor (default: the scenario's)")
+    p.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
+    p.add_argument("--wall-timeout", type=float, default=0.0, help="give up after this many wall seconds (0: never)")
+    args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
+    if args.seed is not None and args.seed < 0:
+        print("experiment: --seed must be a non-negative integer", file=sys.stderr)
+        return 2
+    try:
+        runner = Runner(args)
+    except ConfigError as exc:
+        print(f"experiment: {exc}", file=sys.stderr)
+        return 2
+    runner.prepare()
+    outcome = "failed to start"
+    try:
+        runner.start()
+        outcome = runner.run()
+    except (RuntimeError, OSError) as exc:
+        print(f"experiment: {exc}", file=sys.stderr)
+        runner.stop()
+        return 2
+    except KeyboardInterrupt:
+        outcome = "interrupted"
+        runner.wall_duration = time.monotonic() - runner.wall0
+    finally:
+        runner.stop()
+    runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
+    info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
+            "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
+            "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
+    with open(os.path.join(runner.out, "run_info.json"), "w") as fh:
+        json.dump(info, fh, indent=2)
+        fh.write("\n")
+    try:
+        m = analyze(os.path.join(runner.out, "run.bag"), runner.out)
+    except BagError as exc:
+        print(f"experiment: cannot analyse the run: {exc}", file=sys.stderr)
+        return 2
+    runner.log(f"results in {runner.out}: run.bag, metrics.json, run_info.json, plots; logs in logs/")
+    return 0 if m.get("completed") else 1

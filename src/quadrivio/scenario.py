@@ -1,0 +1,136 @@
+"""Scenarios: one YAML file per experiment (``scenarios/NAME.yaml`` or any path).
+
+Sections (all optional but ``name``), each overriding the config of the node that reads
+it at start-up (``/scenario/<section>``)::
+
+    name, description, seed
+    sim:            quadrivio_sim/config/sim.yaml         (terrain, spawn, obstacles, physics)
+    sensors:        gps | imu | mag | laser_front | laser_rear -> quadrivio_sim/config/<sensor>.yaml
+    localization:   quadrivio_localization/config/localization.yaml
+    path:           quadrivio_navigation/config/path.yaml
+    follower:       quadrivio_navigation/config/follower.yaml
+    run:            this module's RunParams (real-time factor, time limit, end)
+
+:func:`load_scenario` validates every section against the same dataclasses the nodes
+use, so a typo or an out-of-range value stops the experiment before anything starts,
+with the file, the key and the value in the message.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Any, Dict, Tuple
+
+from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, replace_nested
+
+
+@dataclass(frozen=True)
+class RunParams:
+    rtf: float = param(2.0, lo=0.0, hi=100.0, doc="real-time factor of the run (0: as fast as possible)")
+    max_duration: float = param(240.0, lo=1.0, hi=1e6, unit="s", doc="sim time after which the run is stopped")
+    end: str = param("path_done", choices=("path_done", "duration"),
+                     doc="path_done: when the follower is done (or aborts); duration: at max_duration")
+    initial_mode: str = param("AUTO", choices=("SAFE", "MANUAL", "AUTO"), doc="PLC mode requested at start")
+    gps_nmea: bool = param(False, doc="GPS through NMEA and the real driver")
+
+
+SECTIONS = ("sim", "sensors", "localization", "path", "follower", "run")
+SENSORS = ("gps", "imu", "mag", "laser_front", "laser_rear", "camera_left", "camera_right")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    path: str  # the YAML file
+    seed: int
+    description: str
+    data: Dict[str, Any]  # the whole file, as loaded
+    run: RunParams
+
+
+def scenarios_dir() -> str:
+    here = os.path.dirname(os.path.abspath(__file__))
+    return os.path.normpath(os.path.join(here, "..", "..", "scenarios"))
+
+
+def resolve(name_or_path: str) -> str:
+    """A scenario name from ``scenarios/`` or a path to a YAML file."""
+    if os.path.isfile(name_or_path):
+        return os.path.abspath(name_or_path)
+    candidate = os.path.join(scenarios_dir(), name_or_path + ("" if name_or_path.endswith(".yaml") else ".yaml"))
+    if os.path.isfile(candidate):
+        return candidate
+    known = sorted(f[:-5] for f in os.listdir(scenarios_dir()) if f.endswith(".yaml"))
+    raise ConfigError(f"scenario '{name_or_path}': no such file, and not one of {', '.join(known)}")
+
+
+def _validators():
+    """(section path, dataclass, defaults file) of every node a scenario can configure."""
+    from quadrivio_localization.smoother import LocalizerParams
+    from quadrivio_navigation.follower import FollowerConfig
+    from quadrivio_navigation.paths import PathParams
+    from quadrivio_sim.adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams,
+                                              LaserAdapterParams, MagAdapterParams)
+    from quadrivio_sim.paths import package_file as sim_file
+    from quadrivio_sim.simulator import SimParams
+
+    def pkg(name: str, *parts: str) -> str:
+        import rospkg
+        return os.path.join(rospkg.RosPack().get_path(name), *parts)
+
+    yield "sim", SimParams, sim_file("config", "sim.yaml")
+    for sensor, cls, cfg in (("gps", GpsAdapterParams, "gps.yaml"), ("imu", ImuAdapterParams, "imu.yaml"),
+                             ("mag", MagAdapterParams, "mag.yaml"), ("laser_front", LaserAdapterParams, "laser.yaml"),
+                             ("laser_rear", LaserAdapterParams, "laser.yaml"),
+                             ("camera_left", CameraAdapterParams, "camera.yaml"),
+                             ("camera_right", CameraAdapterParams, "camera.yaml")):
+        yield f"sensors/{sensor}", cls, sim_file("config", cfg)
+    yield "localization", LocalizerParams, pkg("quadrivio_localization", "config", "localization.yaml")
+    yield "path", PathParams, pkg("quadrivio_navigation", "config", "path.yaml")
+    yield "follower", FollowerConfig, pkg("quadrivio_navigation", "config", "follower.yaml")
+
+
+def _section(data: Dict[str, Any], path: str) -> Any:
+    node: Any = data
+    for part in path.split("/"):
+        if not isinstance(node, dict) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def _defaults(cls, cfg: str):
+    """The node's defaults from its config file, keeping only the dataclass's own keys."""
+    import dataclasses
+
+    raw = load_yaml(cfg)
+    names = {f.name for f in dataclasses.fields(cls)}
+    return from_mapping(cls, {k: v for k, v in raw.items() if k in names}, cfg)
+
+
+def load_scenario(name_or_path: str) -> Scenario:
+    path = resolve(name_or_path)
+    data = load_yaml(path)
+    unknown = sorted(set(data) - set(SECTIONS) - {"name", "description", "seed"})
+    if unknown:
+        raise ConfigError(f"{path}: unknown section(s) {', '.join(unknown)}; sections: name, description, seed, "
+                          f"{', '.join(SECTIONS)}")
+    if not isinstance(data.get("name"), str) or not data["name"]:
+        raise ConfigError(f"{path}: 'name' is missing")
+    seed = data.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"{path}: 'seed' = {seed!r} must be a non-negative integer")
+    sensors = data.get("sensors") or {}
+    if not isinstance(sensors, dict) or set(sensors) - set(SENSORS):
+        raise ConfigError(f"{path}: 'sensors' may only configure {', '.join(SENSORS)}")
+    for section, cls, cfg in _validators():
+        over = _section(data, section)
+        if over is not None:
+            replace_nested(_defaults(cls, cfg), over, f"{path}: {section.replace('/', '.')}")
+    run = from_mapping(RunParams, data.get("run") or {}, path, "run")
+    return Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
+
+
+def summary(s: Scenario) -> Tuple[str, ...]:
+    return (f"scenario {s.name} ({os.path.relpath(s.path)}), seed {s.seed}", s.description)
