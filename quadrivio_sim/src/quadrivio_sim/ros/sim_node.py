@@ -231,7 +231,9 @@ class SimNode:
         self.sim0 = self.sim.t
 
     def spin(self, stop: threading.Event) -> None:
-        self._publish_clock()
+        # No /clock before the first step: time 0 means "no time yet" to every ROS node.
+        if self.sim.t > 0.0:
+            self._publish_clock()
         self._anchor()
         rate_t0, rate_s0 = time.monotonic(), self.sim.t
         while not stop.is_set() and not rospy.is_shutdown():
