@@ -66,14 +66,14 @@ class DelayedOutput:
         self._drain(None)
 
     def _drain(self, _event) -> None:
+        # The timer thread and the subscriber thread both drain: popping and publishing
+        # under one lock keeps the publication order the queue's order.
         now = rospy.get_time()
-        while True:
-            with self.lock:
-                if not self.queue or self.queue[0][0] > now + 1e-9:
-                    return
+        with self.lock:
+            while self.queue and self.queue[0][0] <= now + 1e-9:
                 _, action = self.queue.popleft()
-            action()
-            self.delivered += 1
+                action()
+                self.delivered += 1
 
 
 def _stamp(t: float) -> rospy.Time:
