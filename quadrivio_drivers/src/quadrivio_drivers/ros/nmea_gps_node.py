@@ -24,6 +24,7 @@ from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import node_params
+from quadrivio_description.ros.timer import guarded_timer
 
 from ..nmea import NO_FIX, Fix, NmeaFixParser, Velocity
 from ..transports import serial_lines, tcp_lines
@@ -53,7 +54,7 @@ class NmeaGpsNode:
         self.diag = Updater()
         self.diag.setHardwareID(f"NMEA GPS {self.source}")
         self.diag.add("GPS", self._diagnose)
-        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         threading.Thread(target=self._run, name="nmea_reader", daemon=True).start()
 
     def _lines(self):

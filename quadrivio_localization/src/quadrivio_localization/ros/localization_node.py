@@ -33,6 +33,7 @@ from quadrivio_description.config import param
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
 from quadrivio_plc.msg import VehicleState
+from quadrivio_description.ros.timer import guarded_timer
 
 from ..dead_reckoning import DeadReckoning
 from ..msg import Calibration
@@ -77,8 +78,8 @@ class LocalizationNode:
         self.diag = Updater()
         self.diag.setHardwareID("localization")
         self.diag.add("localization", self._diagnose)
-        rospy.Timer(rospy.Duration(1.0 / self.p.rate), self._tick)
-        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+        guarded_timer(1.0 / self.p.rate, self._tick, "localization update")
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
 
     # --------------------------------------------------------------- inputs
     def _on_state(self, m: VehicleState) -> None:
@@ -130,8 +131,10 @@ class LocalizationNode:
             rospy.loginfo_throttle(10.0, "localization waiting for a GPS fix and the magnetometer")
             return
         self.estimate = est
-        self.dr.calib = (est.calibration["wheel_speed_scale"], est.calibration["handlebar_offset"],
-                         est.calibration["steering_gain"])
+        with self.lock:  # the state subscriber integrates with dr.calib and appends to its history
+            self.dr.calib = (est.calibration["wheel_speed_scale"], est.calibration["handlebar_offset"],
+                             est.calibration["steering_gain"])
+            odom = self.dr.pose_at(est.stamp) if self.tf is not None else None
         stamp = rospy.Time.from_sec(est.stamp)
         m = Odometry()
         m.header.stamp = stamp
@@ -148,16 +151,13 @@ class LocalizationNode:
         m.twist.twist.linear.x = est.speed
         m.twist.twist.angular.z = est.yaw_rate
         self.pub_odom.publish(m)
-        if self.tf is not None:
-            self._publish_map_to_odom(est, stamp)
+        if odom is not None:
+            self._publish_map_to_odom(est, odom, stamp)
         if sigma is not None:
             self.last_cal = now
             self._publish_calibration(est, sigma, stamp)
 
-    def _publish_map_to_odom(self, est, stamp) -> None:
-        odom = self.dr.pose_at(est.stamp)
-        if odom is None:
-            return
+    def _publish_map_to_odom(self, est, odom, stamp) -> None:
         # T_map_odom = T_map_base * T_odom_base^-1 (planar)
         ox, oy, oth = odom
         th = est.theta - oth

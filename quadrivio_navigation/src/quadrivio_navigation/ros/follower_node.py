@@ -25,6 +25,7 @@ from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
 from quadrivio_plc.msg import Setpoint
+from quadrivio_description.ros.timer import guarded_timer
 
 from ..follower import ABORTED, STATUS_NAMES, FollowerConfig, PurePursuit
 from ..msg import FollowerStatus
@@ -43,7 +44,7 @@ class FollowerNode:
         self.pub_status = rospy.Publisher("follower/status", FollowerStatus, queue_size=10)
         rospy.Subscriber("planner/path", PathMsg, self._on_path, queue_size=1)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
-        rospy.Timer(rospy.Duration(1.0 / self.p.rate), self._tick)
+        guarded_timer(1.0 / self.p.rate, self._tick, "follower cycle")
 
     def _on_path(self, m: PathMsg) -> None:
         pts = np.array([(ps.pose.position.x, ps.pose.position.y) for ps in m.poses])

@@ -23,6 +23,7 @@ from sensor_msgs.msg import Imu
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
+from quadrivio_description.ros.timer import guarded_timer
 
 from ..msg import RolloverRisk
 from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams
@@ -50,7 +51,7 @@ class RolloverNode:
         self.diag = Updater()
         self.diag.setHardwareID("rollover monitor")
         self.diag.add("roll-over risk", self._diagnose)
-        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=50)
         if self.np.stop_on_trip:
             from quadrivio_plc.msg import VehicleState
@@ -70,7 +71,12 @@ class RolloverNode:
         out.header.frame_id = "base_link"
         out.risk, out.roll, out.lateral_accel, out.level = s.risk, s.roll, s.lateral_accel, s.level
         out.static_stability_factor = self.ssf
-        self.pub.publish(out)
+        try:
+            self.pub.publish(out)
+        except rospy.ROSException:  # the publisher is closed while the node shuts down
+            if not rospy.core.is_shutdown_requested():
+                raise
+            return
         if s.level != self.level:
             log = rospy.logerr if s.level == TRIP else rospy.logwarn if s.level > OK else rospy.loginfo
             log("roll-over risk %s: %.0f %% of tipping, roll %.1f deg", LEVEL_NAMES[s.level], 100 * s.risk,

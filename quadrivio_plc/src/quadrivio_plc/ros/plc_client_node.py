@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import sys
 import threading
+import traceback
 from dataclasses import dataclass
 from typing import Dict
 
@@ -25,6 +26,7 @@ from diagnostic_updater import Updater
 
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import node_params, private_params, split_params
+from quadrivio_description.ros.timer import guarded_timer
 
 from .. import protocol as P
 from ..client import Multiplexer, PlcClientParams, PlcLink
@@ -60,14 +62,17 @@ class PlcClientNode:
         self.diag.add("PLC link", self._diagnose)
         self.io = threading.Thread(target=self._io_loop, name="plc_io", daemon=True)
         self.io.start()
-        rospy.Timer(rospy.Duration(1.0 / self.p.send_rate), self._tick)
-        rospy.Timer(rospy.Duration(1.0), lambda _: self.diag.update())
+        guarded_timer(1.0 / self.p.send_rate, self._tick, "setpoint cycle")
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         self.initial_sent = False
 
     # -------------------------------------------------------------- link I/O
     def _io_loop(self) -> None:
-        while not rospy.is_shutdown():
-            self.link.poll(0.05)
+        while not rospy.core.is_shutdown_requested():
+            try:
+                self.link.poll(0.05)
+            except Exception:  # noqa: BLE001 - the link thread must outlive one bad frame or callback
+                rospy.logerr_throttle(5.0, "PLC link I/O failed (continuing):\n%s", traceback.format_exc())
         self.link.close()
 
     def _log(self, level: str, text: str) -> None:
@@ -85,7 +90,12 @@ class PlcClientNode:
         m.wheel_speed, m.handlebar, m.throttle, m.brake = s.wheel_speed, s.handlebar, s.throttle, s.brake
         m.mode, m.faults, m.plc_time = s.mode, s.faults, s.plc_time
         m.setpoint_speed, m.setpoint_handlebar = s.setpoint_speed, s.setpoint_handlebar
-        self.pub_state.publish(m)
+        try:
+            self.pub_state.publish(m)
+        except rospy.ROSException:  # the publisher is closed while the node shuts down
+            if not rospy.core.is_shutdown_requested():
+                raise
+            return
         if first:
             rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
         if self.np.initial_mode and not self.initial_sent:

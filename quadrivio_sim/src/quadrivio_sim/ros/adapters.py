@@ -32,6 +32,7 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
 from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
+from quadrivio_description.ros.timer import guarded_timer
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
@@ -54,7 +55,7 @@ class DelayedOutput:
         self.lock = threading.Lock()
         self.delivered = 0
         if not latency.zero:
-            rospy.Timer(rospy.Duration(release_period), self._drain)
+            guarded_timer(release_period, self._drain, "delayed delivery")
 
     def push(self, stamp: float, action: Callable[[], None]) -> None:
         if self.latency.zero:
