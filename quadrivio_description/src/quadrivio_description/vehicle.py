@@ -72,11 +72,15 @@ class SteeringParams:
 
 @dataclass(frozen=True)
 class DrivetrainParams:
-    drive: str = param(choices=("2wd", "4wd"), doc="driven wheels: rear only or all four (Table 1)")
+    drive: str = param(choices=("2wd", "4wd", "4wd_locked"),
+                       doc="Table 1's drive train: solid rear axle only; plus the front wheels through an open "
+                           "differential; all four locked together")
     max_drive_torque: float = param(lo=0.0, hi=1e5, unit="N m", doc="total wheel torque at full throttle")
     max_brake_torque: float = param(lo=0.0, hi=1e5, unit="N m", doc="total brake torque at full brake, all wheels")
     max_speed: float = param(lo=0.1, hi=50.0, unit="m/s", doc="forward speed setpoint limit")
     max_reverse_speed: float = param(lo=0.0, hi=20.0, unit="m/s", doc="reverse speed setpoint limit")
+    axle_torque_limit: float = param(5000.0, lo=1.0, hi=1e6, unit="N m",
+                                     doc="largest torque a locked shaft transmits between its wheels")
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,8 @@ applies, in the joints' own frames:
 * suspension (prismatic joints, axis z): ``F = -P - k q - c q'`` with ``P`` the static
   corner load (so the static position is ``q = 0``), ``k``, ``c`` from ``vehicle.yaml``;
 * wheel torques: drive torque split over the driven wheels, engine braking, rolling
-  resistance ``Crr N r tanh(w / w0)`` opposing rotation;
+  resistance ``Crr N r tanh(w / w0)`` opposing rotation; wheels on one shaft (the solid
+  rear axle; front and rear in locked 4WD) are tied by gear constraints;
 * brakes: a velocity motor with target 0 whose force limit is the brake torque, i.e.
   Coulomb friction solved implicitly by Bullet (holds the vehicle still on a slope);
 * steering: each front knuckle is position-controlled to its Ackermann angle.
@@ -241,7 +242,11 @@ class World:
         except KeyError as exc:
             raise ConfigError(f"the vehicle URDF lacks the joint {exc}; it must come from "
                               "quadrivio_description's generator or follow its joint names") from exc
-        self.driven = self.wheels if self.v.drivetrain.drive == "4wd" else self.wheels[2:]
+        drive = self.v.drivetrain.drive
+        self.driven = self.wheels if drive in ("4wd", "4wd_locked") else self.wheels[2:]
+        # Wheels on one shaft turn together (see _lock_shafts).
+        fl, fr, rl, rr = self.wheels
+        self.locked_pairs = [(rl, rr)] + ([(fl, fr), (fl, rl)] if drive == "4wd_locked" else [])
         # Position of each joint of interest inside the getJointStates result.
         self._state_ids = self.susp + self.wheels + self.steer
         self._torque_ids = self.susp + self.wheels
@@ -265,8 +270,22 @@ class World:
         # Joints are driven by explicit forces: switch off Bullet's default velocity motors.
         pb.setJointMotorControlArray(self.robot, self.susp, pybullet.VELOCITY_CONTROL, forces=[0.0] * 4)
         pb.setJointMotorControlArray(self.robot, self.wheels, pybullet.VELOCITY_CONTROL, forces=[0.0] * 4)
+        self._lock_shafts()
         self._brake_torque = 0.0
         self._handlebar = None
+
+    def _lock_shafts(self) -> None:
+        """The ATV's rear wheels sit on a solid axle (no rear differential): a wheel that
+        lifts off a bump cannot spin away with the drive torque, as it would through an
+        open differential. In ``4wd`` the front wheels take half the torque through an
+        open front differential (equal torque per side); ``4wd_locked`` also locks the
+        front differential and couples the front and rear shafts (Table 1's "locked 4WD").
+        Each lock is a Bullet gear constraint, ratio -1 meaning "same direction"."""
+        pb = self.pb
+        for a, b in self.locked_pairs:
+            c = pb.createConstraint(self.robot, a, self.robot, b, jointType=pybullet.JOINT_GEAR, jointAxis=[0, 1, 0],
+                                    parentFramePosition=[0, 0, 0], childFramePosition=[0, 0, 0])
+            pb.changeConstraint(c, gearRatio=-1, maxForce=self.v.drivetrain.axle_torque_limit)
 
     # ------------------------------------------------------------------ control
     def reset(self, spawn: Optional[Pose2D] = None) -> None:
