@@ -1,0 +1,86 @@
+"""System test through the user's commands: the paper's figure-eight experiment in
+simulation end to end (`experiment`), and `analyze` on the same bag without ground truth."""
+import json
+import os
+import subprocess
+
+import pytest
+import rosbag
+
+from quadrivio.metrics import CONTRACT_KEYS
+
+PLOTS = ("trajectory.png", "errors.png", "control.png", "calibration.png")
+
+
+@pytest.fixture(scope="module")
+def figure_eight(tmp_path_factory):
+    out = tmp_path_factory.mktemp("figure_eight")
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", "figure_eight", "--out", str(out),
+                        "--wall-timeout", "300"], capture_output=True, text=True, timeout=420)
+    return out, r
+
+
+def test_figure_eight_is_followed_with_noisy_faulty_sensors(figure_eight):
+    out, r = figure_eight
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    m = json.loads((out / "metrics.json").read_text())
+    assert set(CONTRACT_KEYS) <= set(m)
+    assert m["completed"] is True and m["scenario"] == "figure_eight" and m["seed"] == 1
+    # The eight is ~96 m at 2 m/s.
+    assert 45.0 < m["sim_duration_s"] < 80.0
+    # Localization beats its GPS (multipath bursts and drift included) and stays on the path.
+    assert m["loc_rmse_m"] < 0.3 and m["loc_max_m"] < 0.8
+    assert m["loc_rmse_m"] < m["gps_rmse_m"]
+    assert m["loc_heading_rmse_deg"] < 2.0
+    assert m["pred_rmse_m"] < 0.35
+    assert m["xte_rmse_m"] < 0.3 and m["xte_max_m"] < 0.8
+    assert 0.5 < m["max_lateral_accel_mps2"] < 3.0  # 2 m/s on a 6.25 m radius is 0.64 m/s^2
+    for name in PLOTS:
+        assert (out / name).stat().st_size > 20000, name
+    info = json.loads((out / "run_info.json").read_text())
+    assert info["outcome"] == "completed" and info["seed"] == 1
+
+
+def test_analyze_a_bag_without_ground_truth(figure_eight, tmp_path):
+    """What a bag from the real vehicle gives: no ground truth, so those keys are null."""
+    out, r = figure_eight
+    assert r.returncode == 0
+    real = str(tmp_path / "real.bag")
+    with rosbag.Bag(str(out / "run.bag")) as src, rosbag.Bag(real, "w") as dst:
+        for topic, msg, t in src.read_messages(raw=True):
+            if not topic.startswith("/ground_truth") and not topic.startswith("/sim/"):
+                dst.write(topic, msg, t, raw=True)
+    r2 = subprocess.run(["rosrun", "quadrivio", "analyze", real, "--out", str(tmp_path / "an")],
+                        capture_output=True, text=True, timeout=300)
+    assert r2.returncode == 0, r2.stderr[-3000:]
+    m = json.loads((tmp_path / "an" / "metrics.json").read_text())
+    for key in ("loc_rmse_m", "loc_p95_m", "loc_max_m", "loc_heading_rmse_deg", "pred_rmse_m", "gps_rmse_m",
+                "xte_rmse_m", "xte_max_m", "max_lateral_accel_mps2"):
+        assert m[key] is None, key
+    assert m["completed"] is True and 0.9 < m["gps_fix_fraction"] <= 1.0
+    assert (tmp_path / "an" / "trajectory.png").exists()
+
+
+def test_analyze_rejects_a_corrupt_bag(tmp_path):
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(b"#ROSBAG V2.0\n" + os.urandom(500))
+    r = subprocess.run(["rosrun", "quadrivio", "analyze", str(bad), "--out", str(tmp_path / "an")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode != 0 and "bad.bag" in r.stderr
+    assert not (tmp_path / "an" / "metrics.json").exists()
+
+
+def test_rough_terrain_runs_end_to_end(tmp_path):
+    """Beyond the paper: the eight over bumps and a slope, GPS outages and multipath."""
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", "rough_terrain", "--out", str(tmp_path),
+                        "--wall-timeout", "300"], capture_output=True, text=True, timeout=420)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    assert m["completed"] is True and m["scenario"] == "rough_terrain"
+    assert m["loc_rmse_m"] < 1.0 and m["xte_max_m"] < 1.2
+    assert m["gps_fix_fraction"] < 0.97  # the scenario's outages happened
+    with rosbag.Bag(str(tmp_path / "run.bag")) as bag:
+        levels = [msg.level for _, msg, _ in bag.read_messages(topics=["/safety/rollover"])]
+        z = [msg.pose.pose.position.z for _, msg, _ in bag.read_messages(topics=["/ground_truth/odom"])]
+    assert levels and max(levels) < 2  # the roll-over monitor watched and never tripped
+    assert max(z) - min(z) > 0.5  # it was not flat ground
