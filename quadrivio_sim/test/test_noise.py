@@ -175,3 +175,22 @@ def test_same_seed_same_noise():
     b = GpsNoise(GpsNoiseParams(), rng(42))
     for k in range(200):
         assert a.apply(0.2 * k, (1, 2, 3), (0, 0, 0)) == b.apply(0.2 * k, (1, 2, 3), (0, 0, 0))
+
+
+def test_gps_episodes_depend_on_sim_time_only():
+    """An adapter that missed epochs (subscribed late, a dropped message) sees the same
+    outages and multipath bursts as one that saw them all: the run stays the run."""
+    def timeline(times):
+        p = GpsNoiseParams(outages=EpisodeParams(mean_interval=20.0, duration_mean=3.0),
+                           multipath=MultipathParams(mean_interval=15.0, duration_mean=2.0, offset_scale=2.0))
+        g = GpsNoise(p, np.random.default_rng(5))
+        out = {}
+        for t in times:
+            r = g.apply(t, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+            out[round(t, 1)] = (r.position is None, r.multipath)
+        return out
+
+    every = timeline(np.arange(0.0, 300.0, 0.2))
+    late = timeline(np.arange(3.0, 300.0, 0.2)[np.random.default_rng(1).random(1485) > 0.1])
+    assert any(v[0] for v in every.values()) and any(v[1] for v in every.values())
+    assert all(every[t] == v for t, v in late.items())

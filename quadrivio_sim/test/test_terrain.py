@@ -166,11 +166,11 @@ def test_solid_rear_axle_keeps_driving_over_big_bumps(vehicle):
                 dist += math.hypot(p[0] - last[0], p[1] - last[1])
             last = p
     rates = np.array(rates)
-    # [rad/s] One shaft. Bullet's gear constraint is solved iteratively and gives a little
-    # (mean 0.09, p95 0.43 here); free wheels would differ by 0.7 in this turn, and the
-    # unloaded wheel of an open differential spun up to 11.6 on this ground.
+    # [rad/s] One shaft, slipping above drivetrain.axle_torque_limit (100 N m): a limited
+    # slip. Mean difference here 0.23 (p95 0.73); through an open differential 0.72 (max
+    # 3.7), and in the experiment a lifted wheel spun at 11.6 rad/s while the other stood.
     diff = np.abs(rates[:, 2] - rates[:, 3])
-    assert diff.mean() < 0.2 and np.percentile(diff, 95) < 0.7
+    assert diff.mean() < 0.4 and diff.max() < 2.0
     assert np.ptp(rates[:, 0] - rates[:, 1]) > 0.5  # the undriven front wheels turn freely
     assert dist > 0.8 * 1.5 * 28.0  # [m] keeps going (accelerating for the first 2 s)
 
@@ -191,8 +191,8 @@ def test_four_wheel_drive_modes(vehicle, drive):
             spread.append((abs(qd[0] - qd[1]), abs(qd[0] - qd[2])))
     spread = np.array(spread)
     if drive == "4wd_locked":
-        assert spread.mean(axis=0).max() < 0.1  # all four on one shaft, binding in the turn as the real one does
+        assert spread[:, 1].mean() < 0.2  # front and rear shafts coupled (0.14; 0.27 in 4wd)
     else:
-        assert spread[:, 0].mean() > 0.05  # an open front differential lets the front wheels differ in a turn
+        assert spread[:, 0].mean() > 1.0  # the open front differential: the wheels differ in the turn (1.66)
     v_now = sim.world.base_state()[2]
     assert math.hypot(v_now[0], v_now[1]) == pytest.approx(2.0, rel=0.15)  # climbs 20 % while turning

@@ -157,12 +157,17 @@ class GpsReading:
 
 class GpsNoise:
     def __init__(self, p: GpsNoiseParams, rng: np.random.Generator) -> None:
-        self.p, self.rng = p, rng
+        # The episodes and the burst offsets get generators of their own, seeded from
+        # ``rng`` once: their timeline is then a function of sim time alone, the same
+        # whether or not an adapter that subscribed late missed the first epochs.
+        outages, multipath, degradation, offsets = (np.random.default_rng(rng.integers(2 ** 63, size=2))
+                                                    for _ in range(4))
+        self.p, self.rng, self.offset_rng = p, rng, offsets
         self.drift = GaussMarkov(p.drift, rng, 2)
         self.vdrift = GaussMarkov(p.vertical_drift, rng, 1)
-        self.outages = Episodes(p.outages, rng)
-        self.multipath = Episodes(p.multipath, rng)
-        self.degradation = Episodes(p.degradation, rng)
+        self.outages = Episodes(p.outages, outages)
+        self.multipath = Episodes(p.multipath, multipath)
+        self.degradation = Episodes(p.degradation, degradation)
         self._burst_end = -math.inf
         self._offset = np.zeros(3)
         self.bursts = 0  # multipath bursts so far
@@ -179,9 +184,10 @@ class GpsNoise:
         if multipath and t >= self._burst_end:  # a new burst: a new offset for its duration
             self._burst_end = self.multipath.episode_end(t)
             self.bursts += 1
-            r = p.multipath.offset_scale * math.sqrt(-2.0 * math.log(1.0 - self.rng.random()))
-            a = self.rng.uniform(0.0, 2.0 * math.pi)
-            self._offset = np.array([r * math.cos(a), r * math.sin(a), self.rng.normal(0.0, p.multipath.vertical_scale)])
+            g = self.offset_rng
+            r = p.multipath.offset_scale * math.sqrt(-2.0 * math.log(1.0 - g.random()))
+            a = g.uniform(0.0, 2.0 * math.pi)
+            self._offset = np.array([r * math.cos(a), r * math.sin(a), g.normal(0.0, p.multipath.vertical_scale)])
         k = p.degradation.std_factor if degraded else 1.0
         var_h = (p.horizontal_std ** 2 + p.drift.sigma ** 2) * k * k
         var_v = (p.vertical_std ** 2 + p.vertical_drift.sigma ** 2) * k * k
