@@ -29,7 +29,9 @@ def test_figure_eight_is_followed_with_noisy_faulty_sensors(figure_eight):
     # The eight is ~96 m at 2 m/s.
     assert 45.0 < m["sim_duration_s"] < 80.0
     # Localization beats its GPS (multipath bursts and drift included) and stays on the path.
-    assert m["loc_rmse_m"] < 0.3 and m["loc_max_m"] < 0.8
+    # Its absolute error is bounded below by the receiver's slow drift (0.3 m here, through
+    # a 17 s outage), which no GPS-only localization can see.
+    assert m["loc_rmse_m"] < 0.45 and m["loc_max_m"] < 0.8
     assert m["loc_rmse_m"] < m["gps_rmse_m"]
     assert m["loc_heading_rmse_deg"] < 2.0
     assert m["pred_rmse_m"] < 0.35
@@ -57,7 +59,9 @@ def test_analyze_a_bag_without_ground_truth(figure_eight, tmp_path):
     for key in ("loc_rmse_m", "loc_p95_m", "loc_max_m", "loc_heading_rmse_deg", "pred_rmse_m", "gps_rmse_m",
                 "xte_rmse_m", "xte_max_m", "max_lateral_accel_mps2"):
         assert m[key] is None, key
-    assert m["completed"] is True and 0.9 < m["gps_fix_fraction"] <= 1.0
+    online = json.loads((out / "metrics.json").read_text())
+    assert m["completed"] is True and m["gps_fix_fraction"] == pytest.approx(online["gps_fix_fraction"], abs=0.01)
+    assert 0.3 < m["gps_fix_fraction"] < 1.0
     assert (tmp_path / "an" / "trajectory.png").exists()
 
 
@@ -84,3 +88,46 @@ def test_rough_terrain_runs_end_to_end(tmp_path):
         z = [msg.pose.pose.position.z for _, msg, _ in bag.read_messages(topics=["/ground_truth/odom"])]
     assert levels and max(levels) < 2  # the roll-over monitor watched and never tripped
     assert max(z) - min(z) > 0.5  # it was not flat ground
+
+
+def _odom(path):
+    with rosbag.Bag(path) as bag:
+        return [(m.header.stamp.to_nsec(), m.pose.pose.position.x, m.pose.pose.position.y, m.pose.pose.orientation.z,
+                 tuple(m.pose.covariance)) for _, m, _ in bag.read_messages(topics=["/localization/odom"])]
+
+
+def test_replay_is_deterministic_and_as_good_as_online(figure_eight, tmp_path):
+    out, r = figure_eight
+    assert r.returncode == 0
+    cal = subprocess.run(["rospack", "find", "quadrivio_sim"], capture_output=True, text=True).stdout.strip()
+    cal = os.path.join(cal, "config", "mag_calibration.yaml")  # what sim.launch loads
+    outs = []
+    for k in range(2):
+        dst = str(tmp_path / f"replay{k}.bag")
+        rr = subprocess.run(["rosrun", "quadrivio_localization", "replay", str(out / "run.bag"), "--out", dst,
+                             "--params", cal, "--quiet"], capture_output=True, text=True, timeout=300)
+        assert rr.returncode == 0, rr.stderr[-3000:]
+        outs.append(_odom(dst))
+    assert len(outs[0]) > 500 and outs[0] == outs[1]  # message for message
+    online = json.loads((out / "metrics.json").read_text())
+    r2 = subprocess.run(["rosrun", "quadrivio", "analyze", str(tmp_path / "replay0.bag"), "--out", str(tmp_path / "an")],
+                        capture_output=True, text=True, timeout=300)
+    assert r2.returncode == 0, r2.stderr[-3000:]
+    m = json.loads((tmp_path / "an" / "metrics.json").read_text())
+    # Offline the smoother never runs late, so it is at least about as good as online.
+    assert m["loc_rmse_m"] < max(1.2 * online["loc_rmse_m"], online["loc_rmse_m"] + 0.03)
+    assert m["loc_heading_rmse_deg"] < 2.0
+
+
+def test_replay_bad_input(tmp_path):
+    missing = subprocess.run(["rosrun", "quadrivio_localization", "replay", str(tmp_path / "none.bag"),
+                              "--out", str(tmp_path / "o.bag")], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "none.bag: file not found" in missing.stderr
+    empty = str(tmp_path / "nogps.bag")
+    from std_msgs.msg import String
+    with rosbag.Bag(empty, "w") as bag:
+        bag.write("/chatter", String(data="hi"))
+    r = subprocess.run(["rosrun", "quadrivio_localization", "replay", empty, "--out", str(tmp_path / "o.bag")],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "no gps topic /gps/fix" in r.stderr and "/chatter" in r.stderr
+    assert not (tmp_path / "o.bag").exists() and not list(tmp_path.glob(".replay-*"))

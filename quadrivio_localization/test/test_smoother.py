@@ -71,7 +71,9 @@ def test_heading_holds_at_rest(calibrated):
     late = errors[errors[:, 0] > 5.0]
     # Settled: it moves much less than it is uncertain (it used to wander by 45 degrees
     # while claiming 9), and the uncertainty does not shrink on no new information.
-    assert np.ptp(late[:, 2]) < 0.25 * late[:, 3].min()
+    # (Uncalibrated, 12 degrees of settling against 33 of sigma were seen: the antenna's
+    # 0.15 m lever arm lets the fixes say a little about the heading even at rest.)
+    assert np.ptp(late[:, 2]) < 0.5 * late[:, 3].min()
     assert late[:, 3].min() > 0.8 * late[0, 3]
     assert np.all(np.abs(errors[:, 2]) < 3.0 * errors[:, 3])  # consistent
     if calibrated:
@@ -86,11 +88,43 @@ def test_multipath_is_rejected_and_outages_bridged():
                                       "outages": {"scheduled": [[50.0, 62.0]]}})
     errors, loc, _ = run(seconds=90.0, gps_changes=faulty, seed=3)
     settled = errors[errors[:, 0] > 30.0]
-    assert loc.counters.gps_rejected > 10  # multipath bursts of metres, caught by the gate
+    assert loc.counters.gps_rejected + loc.counters.gps_jump_rejected > 10  # multipath bursts of metres
     assert loc.counters.gps_no_fix >= 55  # 12 s of outage at 5 Hz
     assert rmse(settled[:, 1]) < 0.5
     outage = errors[(errors[:, 0] > 50.0) & (errors[:, 0] < 62.0)]
     assert outage[:, 1].max() < 1.0  # 12 s on odometry, gyro and magnetometer alone
+
+
+def test_small_multipath_jumps_are_caught():
+    """A 1.2 m burst is inside the Mahalanobis gate of a settled estimate: the jump test
+    must catch it, let the estimate ride on odometry through it, and take the fixes back
+    when the burst ends."""
+    def burst(noise):
+        return replace_nested(noise, {"multipath": {"scheduled": [[40.0, 52.0]], "offset_scale": 1e-9}})
+
+    import quadrivio_sim.noise as N
+
+    original = N.GpsNoise.apply
+
+    def apply(self, t, position, velocity):  # a fixed 1.2 m east offset during the scheduled burst
+        r = original(self, t, position, velocity)
+        if r.multipath and r.position is not None:
+            p = list(r.position)
+            p[0] += 1.2
+            r = N.GpsReading(r.stamp, r.status, tuple(p), r.velocity, r.variances, r.multipath, r.satellites, r.hdop)
+        return r
+
+    N.GpsNoise.apply = apply
+    try:
+        errors, loc, _ = run(seconds=70.0, gps_changes=burst, seed=4)
+    finally:
+        N.GpsNoise.apply = original
+    # Exactly the burst's 12 s at 5 Hz rejected: none before it, none once it ended.
+    assert loc.counters.gps_jumps == 1 and 55 <= loc.counters.gps_jump_rejected <= 61
+    during = errors[(errors[:, 0] > 40.0) & (errors[:, 0] < 52.0)]
+    after = errors[errors[:, 0] > 55.0]
+    # The receiver's drift keeps this run 0.3-0.43 m off, burst or not: not dragged 1.2 m.
+    assert during[:, 1].max() < 0.5 and after[:, 1].max() < 0.5
 
 
 def test_bad_input_is_counted_not_fatal():

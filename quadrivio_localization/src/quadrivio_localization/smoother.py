@@ -28,7 +28,10 @@ Outlier handling: GPS factors have a Huber kernel, and a fix whose innovation is
 implausible against the current estimate (squared Mahalanobis distance above
 ``noise.gps_gate`` once the estimate has settled) is rejected and counted, so
 multipath bursts do not drag the estimate; after ``5`` s of rejections in a row the
-gate yields, so a genuinely lost estimate re-converges. Every factor's model is in
+gate yields, so a genuinely lost estimate re-converges. Smaller bursts (a metre, within
+the gate) are caught as jumps: a fix that moves more than the vehicle did since the
+previous one starts a suspected burst, which ends when the fix jumps back
+(see Localizer._jumped). Every factor's model is in
 :mod:`quadrivio_localization.factors`.
 """
 
@@ -78,6 +81,11 @@ class NoiseParams:
     gps_default: float = param(3.0, lo=1e-3, hi=1000.0, unit="m", doc="GPS standard deviation when the fix has none")
     gps_huber: float = param(1.5, lo=0.1, hi=100.0, doc="Huber threshold of the GPS factors [sigma]")
     gps_gate: float = param(30.0, lo=1.0, hi=1e6, doc="reject a fix with a larger squared Mahalanobis innovation")
+    gps_jump: float = param(0.5, lo=0.01, hi=100.0, unit="m",
+                            doc="a fix that moved this much more than the vehicle since the previous fix (<= 2 s "
+                                "before) starts a suspected multipath burst (0 disables: use a huge value)")
+    gps_jump_yield: float = param(30.0, lo=0.0, hi=1e4, unit="s",
+                                  doc="accept the fixes again after this long in a suspected burst")
     mag: float = param(1.5, lo=1e-3, hi=100.0, unit="uT",
                        doc="magnetometer model error of a slot's mean reading, horizontal (correlated over a slot)")
     mag_white: float = param(0.3, lo=0.0, hi=100.0, unit="uT", doc="magnetometer white noise per reading")
@@ -165,6 +173,8 @@ class Counters:
     keyframes: int = 0
     gps_used: int = 0
     gps_rejected: int = 0
+    gps_jumps: int = 0  # suspected multipath bursts
+    gps_jump_rejected: int = 0  # fixes rejected inside them
     gps_no_fix: int = 0
     gps_too_old: int = 0
     mag_used: int = 0
@@ -211,6 +221,9 @@ class Localizer:
         self.settled = False
         self.last_accept = -math.inf
         self.rejecting_since: Optional[float] = None
+        self.prev_fix: Optional[Tuple[float, np.ndarray, np.ndarray]] = None  # (t, fix, antenna estimate)
+        self.jump: Optional[np.ndarray] = None  # offset of the suspected multipath burst so far [m]
+        self.jump_since = -math.inf
         self.mag_at_rest = False  # a magnetometer factor already stands for the current stop
         self.latest_t = -math.inf  # newest sensor time seen
         self.latest_speed = 0.0  # [m/s] calibrated speed of the newest interval
@@ -480,7 +493,9 @@ class Localizer:
             dt = t - self._t(k)
             zc = z - self.latest_speed * dt * np.array([math.cos(pose.theta()), math.sin(pose.theta())])
             drift = self._vector(G(k), values)
-            if self._gate(t, pose, zc - drift, ve, vn):
+            if self._jumped(t, zc, pose):
+                self.counters.gps_jump_rejected += 1
+            elif self._gate(t, pose, zc - drift, ve, vn):
                 # The drift is a state: the factor keeps only the white part of the fix's variance.
                 floor, d2 = self.p.noise.gps_floor ** 2, self.p.noise.gps_drift ** 2
                 sigmas = np.sqrt([max(ve - d2, floor), max(vn - d2, floor)])
@@ -490,6 +505,37 @@ class Localizer:
                 graph.add(F.gps_factor(noise, X(k), G(k), zc, self.lever))
                 self.counters.gps_used += 1
         self.gps_pending = keep
+
+    JUMP_WINDOW = 2.0  # [s] fixes further apart are not compared
+
+    def _jumped(self, t: float, z: np.ndarray, pose: gtsam.Pose2) -> bool:
+        """Whether the fix is inside a suspected multipath burst.
+
+        Multipath moves the fix by metres from one epoch to the next while the receiver
+        still claims a fix; the vehicle cannot. A fix that moved ``gps_jump`` more than
+        the estimated antenna did since the previous fix starts a burst; the burst's offset
+        is followed epoch to epoch and the burst ends when the fix jumps back (the offset
+        returns under half the threshold) or after ``gps_jump_yield`` s. An offset of a
+        metre is within the gate of a settled estimate (the Mahalanobis test alone took
+        such bursts in, and then refused the good fixes that came after them)."""
+        antenna = F.gps_antenna(pose, self.lever)
+        prev, self.prev_fix = self.prev_fix, (t, z, antenna)
+        step = None
+        if prev is not None and 0.0 < t - prev[0] <= self.JUMP_WINDOW:
+            step = (z - prev[1]) - (antenna - prev[2])
+        thr = self.p.noise.gps_jump
+        if self.jump is None:
+            if step is not None and self.settled and float(np.hypot(*step)) > thr:
+                self.jump, self.jump_since = step, t
+                self.counters.gps_jumps += 1
+                return True
+            return False
+        if step is not None:
+            self.jump = self.jump + step
+        if float(np.hypot(*self.jump)) < 0.5 * thr or t - self.jump_since > self.p.noise.gps_jump_yield:
+            self.jump = None
+            return False
+        return True
 
     def _gate(self, t: float, pose: gtsam.Pose2, z: np.ndarray, ve: float, vn: float) -> bool:
         """Accept a fix unless, with a settled estimate, it is implausibly far from it."""

@@ -32,12 +32,14 @@ from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_plc.msg import VehicleState
 from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning
 from ..msg import Calibration
-from ..smoother import CALIBRATION_NAMES, Localizer, LocalizerParams
+from ..smoother import Localizer, LocalizerParams
+from . import messages as M
+from .messages import quaternion
 
 
 @dataclass(frozen=True)
@@ -47,13 +49,6 @@ class NodeParams:
     base_frame: str = param("base_link")
     publish_tf: bool = param(True, doc="publish map -> odom -> base_link")
     calibration_period: float = param(1.0, lo=0.05, hi=60.0, unit="s", doc="period of localization/calibration")
-
-
-def quaternion(roll: float, pitch: float, yaw: float):
-    cr, sr, cp, sp, cy, sy = (math.cos(roll / 2), math.sin(roll / 2), math.cos(pitch / 2), math.sin(pitch / 2),
-                              math.cos(yaw / 2), math.sin(yaw / 2))
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy)
 
 
 class LocalizationNode:
@@ -85,7 +80,7 @@ class LocalizationNode:
     def _on_state(self, m: VehicleState) -> None:
         t = m.header.stamp.to_sec()
         with self.lock:
-            self.loc.add_vehicle_state(t, m.wheel_speed, m.handlebar)
+            M.add_state(self.loc, m)
             x, y, th = self.dr.add(t, m.wheel_speed, m.handlebar)
         if self.tf is not None and math.isfinite(x):
             tr = TransformStamped()
@@ -97,21 +92,16 @@ class LocalizationNode:
             self.tf.sendTransform(tr)
 
     def _on_imu(self, m: Imu) -> None:
-        a, w = m.linear_acceleration, m.angular_velocity
         with self.lock:
-            self.loc.add_imu(m.header.stamp.to_sec(), (a.x, a.y, a.z), (w.x, w.y, w.z))
+            M.add_imu(self.loc, m)
 
     def _on_mag(self, m: MagneticField) -> None:
-        f = m.magnetic_field
         with self.lock:
-            self.loc.add_mag(m.header.stamp.to_sec(), (f.x, f.y, f.z))
+            M.add_mag(self.loc, m)
 
     def _on_gps(self, m: NavSatFix) -> None:
-        cov = m.position_covariance
-        known = m.position_covariance_type != NavSatFix.COVARIANCE_TYPE_UNKNOWN
         with self.lock:
-            self.loc.add_gps(m.header.stamp.to_sec(), m.latitude, m.longitude, m.altitude,
-                             cov[0] if known else math.nan, cov[4] if known else math.nan, m.status.status)
+            M.add_gps(self.loc, m)
 
     # --------------------------------------------------------------- output
     def _tick(self, _event) -> None:
@@ -136,20 +126,7 @@ class LocalizationNode:
                              est.calibration["steering_gain"])
             odom = self.dr.pose_at(est.stamp) if self.tf is not None else None
         stamp = rospy.Time.from_sec(est.stamp)
-        m = Odometry()
-        m.header.stamp = stamp
-        m.header.frame_id, m.child_frame_id = self.np.map_frame, self.np.base_frame
-        p = m.pose.pose
-        p.position.x, p.position.y, p.position.z = est.x, est.y, est.z
-        p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = quaternion(est.roll, est.pitch, est.theta)
-        cov = [0.0] * 36
-        for i, a in enumerate((0, 1, 5)):  # x, y, yaw
-            for j, b in enumerate((0, 1, 5)):
-                cov[6 * a + b] = float(est.covariance[i, j])
-        cov[14] = cov[21] = cov[28] = 1e3  # z, roll, pitch: not estimated by the smoother
-        m.pose.covariance = cov
-        m.twist.twist.linear.x = est.speed
-        m.twist.twist.angular.z = est.yaw_rate
+        m = M.odometry(est, self.np.map_frame, self.np.base_frame)
         self.pub_odom.publish(m)
         if odom is not None:
             self._publish_map_to_odom(est, odom, stamp)
@@ -172,16 +149,7 @@ class LocalizationNode:
         self.tf.sendTransform(tr)
 
     def _publish_calibration(self, est, sigma, stamp) -> None:
-        c = est.calibration
-        m = Calibration()
-        m.header.stamp = stamp
-        m.wheel_speed_scale, m.handlebar_offset = c["wheel_speed_scale"], c["handlebar_offset"]
-        m.steering_gain, m.gyro_bias = c["steering_gain"], c["gyro_bias"]
-        m.mag_hard_iron = [c["mag_hard_iron_x"] * 1e-6, c["mag_hard_iron_y"] * 1e-6]
-        m.mag_soft_iron = [c["mag_soft_iron_xx"], c["mag_soft_iron_yy"], c["mag_soft_iron_xy"]]
-        scale = [1, 1, 1, 1, 1e-6, 1e-6, 1, 1, 1]
-        m.sigma = [sigma.get(n, math.nan) * k for n, k in zip(CALIBRATION_NAMES, scale)]
-        self.pub_cal.publish(m)
+        self.pub_cal.publish(M.calibration(est, sigma))
 
     def _diagnose(self, stat):
         c = self.loc.counters
@@ -196,6 +164,8 @@ class LocalizationNode:
         for key, value in (("magnetometer calibration", self.p.priors.magnetometer.source),
                            ("keyframes", c.keyframes), ("GPS fixes used", c.gps_used),
                            ("GPS fixes rejected (multipath suspected)", c.gps_rejected),
+                           ("GPS jumps (suspected multipath bursts)", c.gps_jumps),
+                           ("GPS fixes rejected inside them", c.gps_jump_rejected),
                            ("GPS epochs without a fix", c.gps_no_fix), ("magnetometer factors", c.mag_used),
                            ("magnetometer slots skipped at rest", c.mag_skipped_at_rest),
                            ("intervals without odometry", c.intervals_without_odometry),

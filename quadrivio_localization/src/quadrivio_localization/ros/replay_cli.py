@@ -1,0 +1,221 @@
+"""``rosrun quadrivio_localization replay BAG --out OUT.bag``: the smoother offline over a
+recorded bag's sensor topics, as fast as it can, deterministically.
+
+The bag's messages are taken in their recording order (the order the online node received
+them) and fed to the same :class:`~quadrivio_localization.smoother.Localizer` through the
+same conversions (:mod:`.messages`); the smoother is updated at every ``1 / rate`` tick of
+the bag's clock between them, as the online node's timer would. Nothing depends on the
+wall clock or the machine's speed: the same bag and parameters give the same OUT.bag,
+message for message.
+
+OUT.bag holds the bag's own messages (``--only-outputs``: none of them) with the recorded
+``/localization/*`` topics and ``map -> odom`` transforms replaced by the replay's
+``/localization/odom`` and ``/localization/calibration``: ``rosrun quadrivio analyze
+OUT.bag`` then scores the replayed localization. Parameters: the node's
+``config/localization.yaml``, then each ``--params`` file in order (a magnetometer
+calibration from ``calibrate_mag``, a scenario's ``localization:`` section, your tuning).
+
+Use it to tune the smoother on one recording, to compare parameter sets on the same data,
+or to localize a bag from the vehicle recorded without the stack.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+from typing import Any, Dict, List
+
+from quadrivio_description.config import ConfigError, from_mapping, load_yaml
+from quadrivio_description.site import load_site
+from quadrivio_description.vehicle import load_vehicle
+
+from ..smoother import Localizer, LocalizerParams
+
+ROLES = ("gps", "imu", "mag", "state")
+
+
+class ReplayError(Exception):
+    """The bag or the parameters cannot give a replay; the message says why."""
+
+
+def package_dir() -> str:
+    here = os.path.dirname(os.path.abspath(__file__))
+    candidate = os.path.normpath(os.path.join(here, "..", "..", ".."))
+    if os.path.isfile(os.path.join(candidate, "package.xml")):
+        return candidate
+    import rospkg
+
+    return rospkg.RosPack().get_path("quadrivio_localization")
+
+
+def merge(base: Dict[str, Any], top: Dict[str, Any]) -> Dict[str, Any]:
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_params(files: List[str]):
+    """LocalizerParams and the node's frames from localization.yaml plus ``files`` in order."""
+    import dataclasses
+
+    from .localization_node import NodeParams
+
+    data = load_yaml(os.path.join(package_dir(), "config", "localization.yaml"))
+    for path in files:
+        extra = load_yaml(path)
+        if "localization" in extra and isinstance(extra["localization"], dict) and "name" in extra:
+            extra = extra["localization"]  # a scenario file: its localization section
+        data = merge(data, extra)
+    node_keys = {f.name for f in dataclasses.fields(NodeParams)}
+    mine = {k: v for k, v in data.items() if k in node_keys}
+    rest = {k: v for k, v in data.items() if k not in node_keys}
+    source = " + ".join(["localization.yaml"] + files)
+    return from_mapping(LocalizerParams, rest, source), from_mapping(NodeParams, mine, source)
+
+
+def parse(argv: List[str]) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="replay", description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("bag", help="recorded bag with the sensor topics")
+    ap.add_argument("--out", required=True, help="output bag (written atomically)")
+    ap.add_argument("--params", action="append", default=[], metavar="YAML",
+                    help="parameter file over config/localization.yaml (repeatable), e.g. a calibrate_mag result")
+    ap.add_argument("--vehicle", default="", help="vehicle parameters (default: quadrivio_description's)")
+    ap.add_argument("--site", default="", help="site (datum, Earth field) (default: quadrivio_description's)")
+    ap.add_argument("--gps", default="/gps/fix", help="sensor_msgs/NavSatFix topic")
+    ap.add_argument("--imu", default="/imu/data", help="sensor_msgs/Imu topic")
+    ap.add_argument("--mag", default="/imu/mag", help="sensor_msgs/MagneticField topic")
+    ap.add_argument("--state", default="/vehicle/state",
+                    help="quadrivio_plc/VehicleState topic (or any type with header, wheel_speed, handlebar)")
+    ap.add_argument("--only-outputs", action="store_true", help="write only the replay's topics")
+    ap.add_argument("--quiet", action="store_true", help="no progress lines")
+    return ap.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> Dict[str, Any]:
+    import genpy
+    import rosbag
+    import rospy
+    from tf2_msgs.msg import TFMessage
+
+    from . import messages as M
+
+    params, node = load_params(args.params)
+    loc = Localizer(params, load_vehicle(args.vehicle), load_site(args.site))
+    if not os.path.isfile(args.bag):
+        raise ReplayError(f"{args.bag}: file not found")
+    try:
+        bag = rosbag.Bag(args.bag)
+    except (rosbag.ROSBagException, OSError, ValueError) as exc:
+        raise ReplayError(f"{args.bag}: not a readable bag ({exc})") from exc
+    topics = {"gps": args.gps, "imu": args.imu, "mag": args.mag, "state": args.state}
+    feed = {"gps": M.add_gps, "imu": M.add_imu, "mag": M.add_mag, "state": M.add_state}
+    role_of = {t: r for r, t in topics.items()}
+    out_dir = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(out_dir, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".replay-", suffix=".bag", dir=out_dir)
+    os.close(fd)
+    counts = {r: 0 for r in ROLES}
+    counts.update(bad=0, estimates=0, calibrations=0)
+    wall0 = time.perf_counter()
+    try:
+        with bag:
+            have = bag.get_type_and_topic_info().topics
+            for role in ("gps", "mag"):
+                if topics[role] not in have:
+                    raise ReplayError(f"{args.bag} has no {role} topic {topics[role]} (the smoother starts from a fix "
+                                      f"and the magnetometer); its topics: {', '.join(sorted(have)) or 'none'}")
+            missing = [f"{r} ({topics[r]})" for r in ("imu", "state") if topics[r] not in have]
+            if missing and not args.quiet:
+                print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
+            t_start, t_end = bag.get_start_time(), bag.get_end_time()
+            period = 1.0 / params.rate
+            next_tick = math.floor(t_start / period + 1.0) * period
+            last_stamp, last_cal = -math.inf, -math.inf
+            next_report = 0.1
+            with rosbag.Bag(tmp, "w") as out:
+
+                def tick(now: float, at) -> None:
+                    nonlocal last_stamp, last_cal
+                    est = loc.update(now)
+                    if est is None or est.stamp <= last_stamp:
+                        return
+                    last_stamp = est.stamp
+                    out.write("/localization/odom", M.odometry(est, node.map_frame, node.base_frame), at)
+                    counts["estimates"] += 1
+                    if now - last_cal >= node.calibration_period:
+                        last_cal = now
+                        out.write("/localization/calibration", M.calibration(est, loc.calibration_sigma()), at)
+                        counts["calibrations"] += 1
+
+                for topic, raw, t in bag.read_messages(raw=True):
+                    now = t.to_sec()
+                    while next_tick <= now + 1e-9:
+                        tick(next_tick, rospy.Time.from_sec(next_tick))
+                        next_tick += period
+                    role = role_of.get(topic)
+                    if role is not None:
+                        try:
+                            msg = raw[4]()
+                            msg.deserialize(raw[1])
+                            feed[role](loc, msg)
+                            counts[role] += 1
+                        except (AttributeError, TypeError, ValueError, genpy.DeserializationError) as exc:
+                            counts["bad"] += 1
+                            if counts["bad"] <= 5:
+                                print(f"[replay] {topic} at {now:.3f} s: unusable message ({exc}); skipped",
+                                      file=sys.stderr)
+                    if args.only_outputs or topic.startswith("/localization/"):
+                        continue
+                    if topic in ("/tf", "/tf_static") and raw[0] == "tf2_msgs/TFMessage":
+                        msg = TFMessage()
+                        msg.deserialize(raw[1])
+                        kept = [tr for tr in msg.transforms
+                                if not (tr.header.frame_id.lstrip("/") == node.map_frame
+                                        and tr.child_frame_id.lstrip("/") == node.odom_frame)]
+                        if len(kept) != len(msg.transforms):
+                            if kept:
+                                out.write(topic, TFMessage(transforms=kept), t)
+                            continue
+                    out.write(topic, raw, t, raw=True)
+                    frac = (now - t_start) / max(t_end - t_start, 1e-9)
+                    if not args.quiet and frac >= next_report:
+                        print(f"[replay] {100 * frac:3.0f} % of {t_end - t_start:.1f} s, {counts['estimates']} "
+                              f"estimates, {time.perf_counter() - wall0:.1f} s", file=sys.stderr)
+                        next_report += 0.1
+                tick(next_tick, rospy.Time.from_sec(next_tick))
+    except rosbag.ROSBagException as exc:
+        os.unlink(tmp)
+        raise ReplayError(f"{args.bag}: corrupt bag ({exc})") from exc
+    except BaseException:
+        os.unlink(tmp)
+        raise
+    if counts["estimates"] == 0:
+        os.unlink(tmp)
+        raise ReplayError(f"{args.bag}: no estimate at all from {counts['gps']} GPS messages and {counts['mag']} "
+                          "magnetometer readings (the smoother needs a fix and the magnetometer to start)")
+    os.replace(tmp, args.out)
+    c = loc.counters
+    counts.update(wall_s=round(time.perf_counter() - wall0, 3), bag_s=round(t_end - t_start, 3),
+                  keyframes=c.keyframes, gps_used=c.gps_used, gps_rejected=c.gps_rejected)
+    return counts
+
+
+def main(argv=None) -> int:
+    args = parse(sys.argv[1:] if argv is None else argv)
+    try:
+        counts = run(args)
+    except (ReplayError, ConfigError) as exc:
+        print(f"replay: {exc}; nothing written", file=sys.stderr)
+        return 2
+    print(f"[replay] wrote {args.out}: {counts['estimates']} estimates over {counts['bag_s']} s of bag in "
+          f"{counts['wall_s']} s ({counts['bag_s'] / max(counts['wall_s'], 1e-9):.1f}x real time); inputs: "
+          f"{counts['gps']} GPS, {counts['imu']} IMU, {counts['mag']} magnetometer, {counts['state']} vehicle state"
+          f"{', %d unusable' % counts['bad'] if counts['bad'] else ''}; GPS fixes used {counts['gps_used']}, "
+          f"rejected {counts['gps_rejected']}")
+    return 0
