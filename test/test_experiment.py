@@ -32,7 +32,9 @@ def test_figure_eight_is_followed_with_noisy_faulty_sensors(figure_eight):
     # Its absolute error is bounded below by the receiver's slow drift (0.3 m here, through
     # a 17 s outage), which no GPS-only localization can see.
     assert m["loc_rmse_m"] < 0.45 and m["loc_max_m"] < 0.8
-    assert m["loc_rmse_m"] < m["gps_rmse_m"]
+    # Not dragged by multipath: no worse than the fixes (whose slow drift it cannot see and
+    # shares: 0.31 m against 0.32 in this run), far better at the tail.
+    assert m["loc_rmse_m"] < m["gps_rmse_m"] + 0.05
     assert m["loc_heading_rmse_deg"] < 2.0
     assert m["pred_rmse_m"] < 0.35
     assert m["xte_rmse_m"] < 0.3 and m["xte_max_m"] < 0.8
@@ -81,7 +83,7 @@ def test_rough_terrain_runs_end_to_end(tmp_path):
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())
     assert m["completed"] is True and m["scenario"] == "rough_terrain"
-    assert m["loc_rmse_m"] < 1.0 and m["xte_max_m"] < 1.2
+    assert m["loc_rmse_m"] < 0.6 and m["xte_max_m"] < 1.0  # measured 0.25 and 0.48
     assert m["gps_fix_fraction"] < 0.97  # the scenario's outages happened
     with rosbag.Bag(str(tmp_path / "run.bag")) as bag:
         levels = [msg.level for _, msg, _ in bag.read_messages(topics=["/safety/rollover"])]
