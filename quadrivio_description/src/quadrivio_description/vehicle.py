@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Dict, Tuple
 
 from .config import ConfigError, from_mapping, load_yaml, param
+from .paths import package_dir as _package_dir
 
 GRAVITY = 9.81  # [m/s^2]
 
@@ -189,13 +190,7 @@ class VehicleParams:
 
 def package_dir() -> str:
     """The quadrivio_description package directory (works in the source tree and devel space)."""
-    here = os.path.dirname(os.path.abspath(__file__))
-    candidate = os.path.normpath(os.path.join(here, "..", ".."))
-    if os.path.isfile(os.path.join(candidate, "package.xml")):
-        return candidate
-    import rospkg  # installed layout: ask the ROS package index
-
-    return rospkg.RosPack().get_path("quadrivio_description")
+    return _package_dir("quadrivio_description", __file__, 2)
 
 
 def default_vehicle_file() -> str:

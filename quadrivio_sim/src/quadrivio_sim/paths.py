@@ -1,15 +1,11 @@
 """Files shipped with quadrivio_sim (config/*.yaml), found from the source tree or via rospkg."""
 import os
 
+from quadrivio_description.paths import package_dir as _package_dir
+
 
 def package_dir() -> str:
-    here = os.path.dirname(os.path.abspath(__file__))
-    candidate = os.path.normpath(os.path.join(here, "..", ".."))
-    if os.path.isfile(os.path.join(candidate, "package.xml")):
-        return candidate
-    import rospkg  # installed layout
-
-    return rospkg.RosPack().get_path("quadrivio_sim")
+    return _package_dir("quadrivio_sim", __file__, 2)
 
 
 def package_file(*parts: str) -> str:

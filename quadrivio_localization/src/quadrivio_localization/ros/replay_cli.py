@@ -30,6 +30,7 @@ import time
 from typing import Any, Dict, List
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml
+from quadrivio_description.paths import package_dir as _package_dir
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -43,13 +44,7 @@ class ReplayError(Exception):
 
 
 def package_dir() -> str:
-    here = os.path.dirname(os.path.abspath(__file__))
-    candidate = os.path.normpath(os.path.join(here, "..", "..", ".."))
-    if os.path.isfile(os.path.join(candidate, "package.xml")):
-        return candidate
-    import rospkg
-
-    return rospkg.RosPack().get_path("quadrivio_localization")
+    return _package_dir("quadrivio_localization", __file__, 3)
 
 
 def merge(base: Dict[str, Any], top: Dict[str, Any]) -> Dict[str, Any]:
