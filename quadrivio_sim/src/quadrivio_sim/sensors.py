@@ -176,9 +176,8 @@ class LaserSensor:
     def sample(self, t: float) -> ScanSample:
         pos, orn, _, _ = self.world.link_state(self.frame)
         R = quat_to_matrix(orn)
-        frac = self.world.ray_batch((self.starts @ R.T + pos).tolist(), (self.ends @ R.T + pos).tolist())
-        lo, span = self.p.range_min, self.span
-        ranges = tuple(math.inf if f >= 1.0 else lo + f * span for f in frac)
+        frac = np.asarray(self.world.ray_batch((self.starts @ R.T + pos).tolist(), (self.ends @ R.T + pos).tolist()))
+        ranges = tuple(np.where(frac >= 1.0, math.inf, self.p.range_min + frac * self.span).tolist())
         return ScanSample(t, self.frame, self.angle_min, self.increment, ranges,
                           self.p.range_min, self.p.range_max, 1.0 / self.p.rate)
 
