@@ -1,0 +1,136 @@
+"""Benchmarks of the closed loop and of the smoother.
+
+stack_rtf: the paper's figure eight (scenarios/figure_eight.yaml, its seed) closed loop,
+the whole stack (simulator, adapters, PLC link, smoother, predictor, follower), run with
+``rosrun quadrivio experiment`` at real-time factor 1, then at increasing factors. The
+highest factor whose run completes with its tracking metrics (xte_rmse_m, xte_max_m)
+within 10 % of the factor-1 run's is ``stack_rtf`` (a stack that cannot keep up falls
+behind the simulated vehicle: the follower acts on stale poses or aborts).
+
+smoother_update_p99_ms, smoother_cpu_frac: the factor-1 run's sensor topics fed to the
+smoother offline exactly as ``replay`` does (same order, 20 Hz updates on the bag's
+clock); each update timed on the wall clock, and the CPU time of the whole replay over
+the bag's duration: the share of one core the smoother needs at 20 Hz in real time.
+
+Writes bench/results/stack.json and bench/results/smoother.json.
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from common import RESULTS, machine, write_result  # noqa: E402
+
+FACTORS = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+KEYS = ("xte_rmse_m", "xte_max_m")
+SCENARIO = "figure_eight"
+
+
+def run(rtf: float) -> dict:
+    out = os.path.join(RESULTS, f".stack_rtf{rtf:g}")
+    t0 = time.monotonic()
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
+                        "--wall-timeout", "400"], capture_output=True, text=True)
+    wall = time.monotonic() - t0
+    path = os.path.join(out, "metrics.json")
+    if not os.path.isfile(path):
+        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
+        return {"completed": False, "out": out, "wall_s": wall}
+    with open(path) as fh:
+        m = json.load(fh)
+    m.update(out=out, wall_s=wall)
+    return m
+
+
+def stack_rtf() -> dict:
+    runs = {}
+    ref = run(1.0)
+    runs[1.0] = ref
+    print(f"[bench stack] factor 1: completed {ref['completed']}, " +
+          ", ".join(f"{k} {ref.get(k)}" for k in KEYS), flush=True)
+    if not ref["completed"]:
+        raise SystemExit("[bench stack] the factor-1 run did not complete: no reference")
+    best = 1.0
+    for f in FACTORS[1:]:
+        m = run(f)
+        runs[f] = m
+        ok = m["completed"] and all(m[k] is not None and m[k] <= 1.1 * ref[k] for k in KEYS)
+        print(f"[bench stack] factor {f:g}: completed {m['completed']}, achieved rtf {m.get('rtf')}, " +
+              ", ".join(f"{k} {m.get(k)}" for k in KEYS) + (" ok" if ok else " -> beyond the stack"), flush=True)
+        if not ok:
+            break
+        best = f
+    result = {"stack_rtf": best, "scenario": f"{SCENARIO} (its seed), factors tried {sorted(runs)}",
+              "criterion": "completed and xte_rmse_m, xte_max_m within 10 % of the factor-1 run",
+              "machine": machine()}
+    for f, m in runs.items():
+        for k in KEYS + ("loc_rmse_m", "rtf", "wall_s"):
+            v = m.get(k)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                result[f"f{f:g}_{k}"] = v
+        result[f"f{f:g}_completed"] = 1.0 if m["completed"] else 0.0
+    write_result("stack", result)
+    return runs[1.0]
+
+
+def smoother(bag_path: str) -> None:
+    import rosbag
+
+    from quadrivio_description.site import load_site
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_localization.ros import messages as M
+    from quadrivio_localization.ros.replay_cli import load_params
+    from quadrivio_localization.smoother import Localizer
+    from quadrivio_sim.paths import package_file
+
+    params, _ = load_params([package_file("config", "mag_calibration.yaml")])
+    loc = Localizer(params, load_vehicle(), load_site())
+    feed = {"/gps/fix": M.add_gps, "/imu/data": M.add_imu, "/imu/mag": M.add_mag, "/vehicle/state": M.add_state}
+    period = 1.0 / params.rate
+    times, feed_s = [], 0.0
+    with rosbag.Bag(bag_path) as bag:
+        t_start, t_end = bag.get_start_time(), bag.get_end_time()
+        msgs = list(bag.read_messages(topics=list(feed)))
+    next_tick = math.floor(t_start / period + 1.0) * period
+    cpu0 = time.process_time()
+    for topic, msg, t in msgs:
+        now = t.to_sec()
+        while next_tick <= now + 1e-9:
+            w0 = time.perf_counter()
+            loc.update(next_tick)
+            times.append(time.perf_counter() - w0)
+            next_tick += period
+        w0 = time.perf_counter()
+        feed[topic](loc, msg)
+        feed_s += time.perf_counter() - w0
+    cpu = time.process_time() - cpu0
+    ms = np.array(times) * 1e3
+    duration = t_end - t_start
+    result = {"smoother_update_p99_ms": float(np.percentile(ms, 99)),
+              "smoother_update_p50_ms": float(np.percentile(ms, 50)),
+              "smoother_update_max_ms": float(ms.max()),
+              "smoother_cpu_frac": cpu / duration,
+              "smoother_input_cpu_frac": feed_s / duration,
+              "updates": len(times), "bag_seconds": duration, "keyframes": loc.counters.keyframes,
+              "rate_hz": params.rate, "lag_s": params.lag,
+              "scenario": f"{SCENARIO} closed loop at factor 1, its sensor topics replayed offline ({bag_path})",
+              "machine": machine()}
+    print(f"[bench smoother] update p50 {result['smoother_update_p50_ms']:.2f} ms, p99 "
+          f"{result['smoother_update_p99_ms']:.2f} ms over {len(times)} updates; "
+          f"{result['smoother_cpu_frac']:.3f} of a core at 20 Hz", flush=True)
+    write_result("smoother", result)
+
+
+def main():
+    ref = stack_rtf()
+    smoother(os.path.join(ref["out"], "run.bag"))
+
+
+if __name__ == "__main__":
+    main()
