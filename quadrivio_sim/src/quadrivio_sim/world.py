@@ -432,7 +432,8 @@ class World:
 
     def ray_batch(self, starts: Sequence[Vec3], ends: Sequence[Vec3]) -> List[float]:
         """Hit fraction of each ray (1.0: no hit) against ground and obstacles (world frame)."""
-        hits = pybullet.rayTestBatch(starts, ends, physicsClientId=self.rays_cid)
+        # numThreads=1: Bullet's default (-1) costs 50 % more per 271-ray batch here.
+        hits = pybullet.rayTestBatch(starts, ends, numThreads=1, physicsClientId=self.rays_cid)
         return [h[2] if h[0] != -1 else 1.0 for h in hits]
 
     def close(self) -> None:

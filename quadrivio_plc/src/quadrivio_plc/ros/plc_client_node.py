@@ -138,26 +138,30 @@ class PlcClientNode:
 
     # ------------------------------------------------------------------ mode
     def _request_mode(self, mode: int):
+        """Ask the PLC for ``mode``: (accepted, text, the PLC's mode after the request)."""
         event = threading.Event()
         answer = []
         sent = self.link.send(P.ModeRequest(mode), on_ack=lambda ack: (answer.append(ack), event.set()))
         if sent is None:
-            return False, f"not connected to the PLC ({self.link.last_error})"
+            return False, f"not connected to the PLC ({self.link.last_error})", max(self.mode, 0)
         if not event.wait(self.p.mode_timeout):
-            return False, f"the PLC did not answer within {self.p.mode_timeout} s"
+            return False, f"the PLC did not answer within {self.p.mode_timeout} s", max(self.mode, 0)
         ack = answer[0]
         if ack.status != P.OK:
             msg = f"PLC refused {P.mode_name(mode)} in {P.mode_name(ack.mode)}: {P.STATUS_NAMES.get(ack.status)}"
             rospy.logwarn(msg)
-            return False, msg
+            return False, msg, ack.mode
+        # The acknowledgement is the PLC's word: forward the new mode's source from now,
+        # not from its next state frame (up to 20 ms later, and the service's caller
+        # must read the mode it asked for).
+        self.mode = ack.mode
         rospy.loginfo("PLC mode %s", P.mode_name(ack.mode))
-        return True, f"mode {P.mode_name(ack.mode)}"
+        return True, f"mode {P.mode_name(ack.mode)}", ack.mode
 
     def _srv_set_mode(self, req) -> SetModeResponse:
         if req.mode not in P.MODE_NAMES:
             return SetModeResponse(False, f"unknown mode {req.mode}; modes: {P.MODE_NAMES}", max(self.mode, 0))
-        ok, text = self._request_mode(req.mode)
-        return SetModeResponse(ok, text, max(self.mode, 0))
+        return SetModeResponse(*self._request_mode(req.mode))
 
     # ----------------------------------------------------------- diagnostics
     def _diagnose(self, stat):
