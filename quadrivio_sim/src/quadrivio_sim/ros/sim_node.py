@@ -277,11 +277,13 @@ class SimNode:
         if sp is not None:
             self.sim.plc.force_auto(self.sim.t)
             self.sim.plc.setpoint(P.SOURCE_AUTO, sp.speed, sp.handlebar, sp.brake)
+        client = self.server.connected
         for name, sample in self.sim.step():
             self._publish(name, sample)
             # Answer PLC frames between publications too, not only once per step: a
             # frame arriving now waits one publication (~50 us), not the whole step.
-            self.server.poll(0.0)
+            if client:
+                self.server.poll(0.0)
         if self.sim.steps % self.np.clock_every == 0:
             self._publish_clock()
 
