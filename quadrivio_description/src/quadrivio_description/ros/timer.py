@@ -1,4 +1,4 @@
-"""A rospy.Timer that survives its callback's exceptions.
+"""Periodic work and publishing that survive exceptions and shutdown.
 
 rospy runs each Timer in its own thread and that thread ends on the first exception the
 callback raises: the node keeps running, silently without its periodic work (a
@@ -26,3 +26,15 @@ def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], No
             rospy.logerr_throttle(5.0, "%s failed (retrying every cycle):\n%s", what, traceback.format_exc())
 
     return rospy.Timer(rospy.Duration(period), run)
+
+
+def publish(pub: rospy.Publisher, msg) -> bool:
+    """``pub.publish(msg)``; False instead of an exception once the node is shutting down
+    (rospy closes publishers before ``is_shutdown()`` turns true)."""
+    try:
+        pub.publish(msg)
+        return True
+    except rospy.ROSException:
+        if not rospy.core.is_shutdown_requested():
+            raise
+        return False

@@ -23,7 +23,7 @@ from sensor_msgs.msg import Imu
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
-from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_description.ros.timer import guarded_timer, publish
 
 from ..msg import RolloverRisk
 from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams
@@ -71,11 +71,7 @@ class RolloverNode:
         out.header.frame_id = "base_link"
         out.risk, out.roll, out.lateral_accel, out.level = s.risk, s.roll, s.lateral_accel, s.level
         out.static_stability_factor = self.ssf
-        try:
-            self.pub.publish(out)
-        except rospy.ROSException:  # the publisher is closed while the node shuts down
-            if not rospy.core.is_shutdown_requested():
-                raise
+        if not publish(self.pub, out):
             return
         if s.level != self.level:
             log = rospy.logerr if s.level == TRIP else rospy.logwarn if s.level > OK else rospy.loginfo

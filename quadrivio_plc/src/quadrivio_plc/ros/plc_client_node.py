@@ -26,7 +26,7 @@ from diagnostic_updater import Updater
 
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import node_params, private_params, split_params
-from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_description.ros.timer import guarded_timer, publish
 
 from .. import protocol as P
 from ..client import Multiplexer, PlcClientParams, PlcLink
@@ -90,11 +90,7 @@ class PlcClientNode:
         m.wheel_speed, m.handlebar, m.throttle, m.brake = s.wheel_speed, s.handlebar, s.throttle, s.brake
         m.mode, m.faults, m.plc_time = s.mode, s.faults, s.plc_time
         m.setpoint_speed, m.setpoint_handlebar = s.setpoint_speed, s.setpoint_handlebar
-        try:
-            self.pub_state.publish(m)
-        except rospy.ROSException:  # the publisher is closed while the node shuts down
-            if not rospy.core.is_shutdown_requested():
-                raise
+        if not publish(self.pub_state, m):
             return
         if first:
             rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
