@@ -4,11 +4,11 @@ definitions are enough: no generated classes are needed)."""
 from __future__ import annotations
 
 import math
-import os
 from typing import Dict, List
 
 import numpy as np
 
+from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 
@@ -51,15 +51,7 @@ def _series(rows: List[tuple], names: tuple) -> Series:
 def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
     import rosbag
 
-    if not os.path.isfile(path):
-        raise BagError(f"{path}: file not found")
-    try:
-        bag = rosbag.Bag(path)
-    except rosbag.bag.ROSBagUnindexedException as exc:
-        raise BagError(f"{path}: the bag has no index (recording was cut short); run 'rosbag reindex {path}' "
-                       "and try again") from exc
-    except (rosbag.ROSBagException, OSError, ValueError) as exc:
-        raise BagError(f"{path}: not a readable bag ({exc})") from exc
+    bag = open_bag(path, BagError)
     frame = site.local_frame()
     rows: Dict[str, List[tuple]] = {k: [] for k in TOPICS}
     path_xy = None

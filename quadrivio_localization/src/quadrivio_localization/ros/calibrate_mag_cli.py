@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError
+from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -39,12 +40,7 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
     """Levelled horizontal readings [uT], averaged over ``period`` s, taken while moving."""
     import rosbag
 
-    if not os.path.isfile(path):
-        raise MagCalibrationError(f"{path}: file not found")
-    try:
-        bag = rosbag.Bag(path)
-    except (rosbag.ROSBagException, OSError, ValueError) as exc:
-        raise MagCalibrationError(f"{path}: not a readable bag ({exc})") from exc
+    bag = open_bag(path, MagCalibrationError)
     with bag:
         have = bag.get_type_and_topic_info().topics
         for role, topic in (("magnetometer", mag_topic), ("IMU", imu_topic)):

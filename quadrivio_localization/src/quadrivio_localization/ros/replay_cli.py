@@ -31,6 +31,7 @@ from typing import Any, Dict, List
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.paths import package_dir as _package_dir
+from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -102,12 +103,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
 
     params, node = load_params(args.params)
     loc = Localizer(params, load_vehicle(args.vehicle), load_site(args.site))
-    if not os.path.isfile(args.bag):
-        raise ReplayError(f"{args.bag}: file not found")
-    try:
-        bag = rosbag.Bag(args.bag)
-    except (rosbag.ROSBagException, OSError, ValueError) as exc:
-        raise ReplayError(f"{args.bag}: not a readable bag ({exc})") from exc
+    bag = open_bag(args.bag, ReplayError)
     topics = {"gps": args.gps, "imu": args.imu, "mag": args.mag, "state": args.state}
     feed = {"gps": M.add_gps, "imu": M.add_imu, "mag": M.add_mag, "state": M.add_state}
     role_of = {t: r for r, t in topics.items()}

@@ -36,6 +36,7 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, to_mapping
+from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 
@@ -79,12 +80,7 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
     """Arrays ``{"setpoint": {"t", "speed", "handlebar", "brake"}, "measurement": {...}}``."""
     import rosbag
 
-    if not os.path.isfile(path):
-        raise CalibrationError(f"{path}: file not found")
-    try:
-        bag = rosbag.Bag(path)
-    except (rosbag.ROSBagException, OSError, ValueError) as exc:
-        raise CalibrationError(f"{path}: not a readable bag ({exc})") from exc
+    bag = open_bag(path, CalibrationError)
     with bag:
         topics = bag.get_type_and_topic_info().topics
         for role in ("setpoint", "measurement"):
