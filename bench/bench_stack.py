@@ -15,7 +15,6 @@ the bag's duration: the share of one core the smoother needs at 20 Hz in real ti
 Writes bench/results/stack.json and bench/results/smoother.json.
 """
 import json
-import math
 import os
 import subprocess
 import sys
@@ -85,31 +84,27 @@ def smoother(bag_path: str) -> None:
     from quadrivio_description.site import load_site
     from quadrivio_description.vehicle import load_vehicle
     from quadrivio_localization.ros import messages as M
-    from quadrivio_localization.ros.replay_cli import load_params
+    from quadrivio_localization.ros.replay_cli import Ticker, load_params
     from quadrivio_localization.smoother import Localizer
     from quadrivio_sim.paths import package_file
 
     params, _ = load_params([package_file("config", "mag_calibration.yaml")])
     loc = Localizer(params, load_vehicle(), load_site())
     feed = {"/gps/fix": M.add_gps, "/imu/data": M.add_imu, "/imu/mag": M.add_mag, "/vehicle/state": M.add_state}
-    period = 1.0 / params.rate
-    times, feed_s = [], 0.0
+    feed_s = 0.0
     with rosbag.Bag(bag_path) as bag:
         t_start, t_end = bag.get_start_time(), bag.get_end_time()
         msgs = list(bag.read_messages(topics=list(feed)))
-    next_tick = math.floor(t_start / period + 1.0) * period
+    ticker = Ticker(loc, params.rate, t_start)  # replay's own schedule of updates
     cpu0 = time.process_time()
     for topic, msg, t in msgs:
-        now = t.to_sec()
-        while next_tick <= now + 1e-9:
-            w0 = time.perf_counter()
-            loc.update(next_tick)
-            times.append(time.perf_counter() - w0)
-            next_tick += period
+        for _ in ticker.until(t.to_sec()):
+            pass
         w0 = time.perf_counter()
         feed[topic](loc, msg)
         feed_s += time.perf_counter() - w0
     cpu = time.process_time() - cpu0
+    times = ticker.update_s
     ms = np.array(times) * 1e3
     duration = t_end - t_start
     result = {"smoother_update_p99_ms": float(np.percentile(ms, 99)),

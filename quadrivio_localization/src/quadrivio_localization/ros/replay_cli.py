@@ -27,7 +27,7 @@ import os
 import sys
 import tempfile
 import time
-from typing import Any, Dict, List
+from typing import Any, Dict, Iterator, List, Tuple
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.paths import package_dir as _package_dir
@@ -35,7 +35,7 @@ from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
-from ..smoother import Localizer, LocalizerParams
+from ..smoother import Estimate, Localizer, LocalizerParams
 
 ROLES = ("gps", "imu", "mag", "state")
 
@@ -72,6 +72,34 @@ def load_params(files: List[str]):
     rest = {k: v for k, v in data.items() if k not in node_keys}
     source = " + ".join(["localization.yaml"] + files)
     return from_mapping(LocalizerParams, rest, source), from_mapping(NodeParams, mine, source)
+
+
+class Ticker:
+    """The online node's timer on a bag's clock: before a message received at ``now`` is
+    fed, the smoother is updated at every ``1 / rate`` tick up to ``now``. The wall time of
+    each update is kept in ``update_s`` (the smoother benchmark reads it)."""
+
+    def __init__(self, loc: Localizer, rate: float, t_start: float) -> None:
+        self.loc, self.period = loc, 1.0 / rate
+        self.next = math.floor(t_start / self.period + 1.0) * self.period
+        self.last_stamp = -math.inf
+        self.update_s: List[float] = []
+
+    def until(self, now: float) -> Iterator[Tuple[float, Estimate]]:
+        """``(tick time, estimate)`` for every tick up to ``now`` that gave a new estimate."""
+        while self.next <= now + 1e-9:
+            tick = self.next
+            self.next += self.period
+            w0 = time.perf_counter()
+            est = self.loc.update(tick)
+            self.update_s.append(time.perf_counter() - w0)
+            if est is not None and est.stamp > self.last_stamp:
+                self.last_stamp = est.stamp
+                yield tick, est
+
+    def final(self) -> Iterator[Tuple[float, Estimate]]:
+        """The tick after the last message."""
+        return self.until(self.next)
 
 
 def parse(argv: List[str]) -> argparse.Namespace:
@@ -125,30 +153,25 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
             if missing and not args.quiet:
                 print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
             t_start, t_end = bag.get_start_time(), bag.get_end_time()
-            period = 1.0 / params.rate
-            next_tick = math.floor(t_start / period + 1.0) * period
-            last_stamp, last_cal = -math.inf, -math.inf
+            ticker = Ticker(loc, params.rate, t_start)
+            last_cal = -math.inf
             next_report = 0.1
             with rosbag.Bag(tmp, "w") as out:
 
-                def tick(now: float, at) -> None:
-                    nonlocal last_stamp, last_cal
-                    est = loc.update(now)
-                    if est is None or est.stamp <= last_stamp:
-                        return
-                    last_stamp = est.stamp
-                    out.write("/localization/odom", M.odometry(est, node.map_frame, node.base_frame), at)
-                    counts["estimates"] += 1
-                    if now - last_cal >= node.calibration_period:
-                        last_cal = now
-                        out.write("/localization/calibration", M.calibration(est, loc.calibration_sigma()), at)
-                        counts["calibrations"] += 1
+                def write(estimates) -> None:
+                    nonlocal last_cal
+                    for tick, est in estimates:
+                        at = rospy.Time.from_sec(tick)
+                        out.write("/localization/odom", M.odometry(est, node.map_frame, node.base_frame), at)
+                        counts["estimates"] += 1
+                        if tick - last_cal >= node.calibration_period:
+                            last_cal = tick
+                            out.write("/localization/calibration", M.calibration(est, loc.calibration_sigma()), at)
+                            counts["calibrations"] += 1
 
                 for topic, raw, t in bag.read_messages(raw=True):
                     now = t.to_sec()
-                    while next_tick <= now + 1e-9:
-                        tick(next_tick, rospy.Time.from_sec(next_tick))
-                        next_tick += period
+                    write(ticker.until(now))
                     role = role_of.get(topic)
                     if role is not None:
                         try:
@@ -179,7 +202,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                         print(f"[replay] {100 * frac:3.0f} % of {t_end - t_start:.1f} s, {counts['estimates']} "
                               f"estimates, {time.perf_counter() - wall0:.1f} s", file=sys.stderr)
                         next_report += 0.1
-                tick(next_tick, rospy.Time.from_sec(next_tick))
+                write(ticker.final())
     except rosbag.ROSBagException as exc:
         os.unlink(tmp)
         raise ReplayError(f"{args.bag}: corrupt bag ({exc})") from exc
