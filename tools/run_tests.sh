@@ -32,11 +32,16 @@ if [ "$mode" = all ] || [ "$mode" = rostest ]; then
     log="$LOGS/${pkg}__${name%.test}.log"
     start=$(date +%s)
     printf '[%2d/%d] %-45s ' "$i" "${#tests[@]}" "$pkg/$name"
-    if rostest "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log"; then
+    results="$LOGS/results/${pkg}__${name%.test}"
+    rm -rf "$results"
+    if rostest --results-base-dir "$results" "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log"; then
       printf 'ok     %4ds\n' "$(( $(date +%s) - start ))"
     else
       printf 'FAILED %4ds  (log: %s)\n' "$(( $(date +%s) - start ))" "${log#$ROOT/}"
-      grep -E "FAILURE|ERROR|Error|assert|FATAL" "$log" | grep -v "^\s*$" | tail -n 15 | sed 's/^/    /'
+      # The assertion messages, from the JUnit files rostest writes; the log's own
+      # summary leaves them out.
+      python3 "$ROOT/tools/junit_failures.py" "$results" | sed 's/^/    /'
+      grep -E "FATAL|Traceback|process has died" "$log" | tail -n 5 | sed 's/^/    /'
       failed+=("$pkg/$name")
     fi
   done
