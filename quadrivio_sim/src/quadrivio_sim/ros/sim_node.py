@@ -4,6 +4,9 @@ hosts the emulated PLC's TCP server.
 Parameters (private, see ``config/sim.yaml`` for every key of the simulation itself):
 
 * ``~real_time_factor`` (float, 1.0): sim seconds per wall second; 0 runs as fast as possible.
+* ``~max_lag`` (float, 0.05): sim seconds the simulator may fall behind its real-time
+  schedule and make up by stepping without waiting; a longer stall is dropped rather than
+  raced through (see ``pacing.py``: a burst of sim time starves wall-clock nodes).
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
@@ -57,6 +60,7 @@ from quadrivio_sim.srv import Step, StepResponse
 
 from ..actuators import ActuatorParams
 from ..paths import package_file
+from ..pacing import Pacer
 from ..plc_emulator import PlcServer
 from ..script import load_script
 from ..simulator import GroundTruth, JointSample, SimParams, Simulator
@@ -67,6 +71,8 @@ from ..sensors import GpsSample, ImageSample, ImuSample, MagSample, ScanSample
 @dataclass(frozen=True)
 class NodeParams:
     real_time_factor: float = param(1.0, lo=0.0, hi=1000.0, doc="sim s per wall s; 0: as fast as possible")
+    max_lag: float = param(0.05, lo=0.0, hi=10.0, unit="s",
+                           doc="sim time a late simulator may make up by not waiting; a longer stall is dropped")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
@@ -122,6 +128,7 @@ class SimNode:
         self.rtf = self.np.real_time_factor
         self.debug_sp: Optional[Setpoint] = None
         self.behind_warned = 0.0
+        self.pacer = Pacer(self.rtf, self.np.max_lag)
         self.stopped = False
 
         with warnings.catch_warnings():
@@ -227,8 +234,7 @@ class SimNode:
 
     # ------------------------------------------------------------------ loop
     def _anchor(self) -> None:
-        self.wall0 = time.monotonic()
-        self.sim0 = self.sim.t
+        self.pacer.anchor(self.sim.t, time.monotonic())
 
     def spin(self, stop: threading.Event) -> None:
         # No /clock before the first step: time 0 means "no time yet" to every ROS node.
@@ -247,17 +253,15 @@ class SimNode:
             if self.np.run_until and self.sim.t >= self.np.run_until - 1e-9 and not self.stopped:
                 rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
                 self.paused = self.stopped = True
-            if self.rtf > 0.0:
-                ahead = self.wall0 + (self.sim.t - self.sim0) / self.rtf - time.monotonic()
-                if ahead < -0.5:  # cannot keep up: re-anchor instead of racing to catch up
-                    now = time.monotonic()
-                    if now - self.behind_warned > 10.0:
-                        rospy.logwarn("simulator running behind real_time_factor %.2f", self.rtf)
-                        self.behind_warned = now
-                    self._anchor()
-                self.server.poll(max(0.0, ahead))
-            else:
-                self.server.poll(0.0)
+            drops = self.pacer.drops
+            self.server.poll(self.pacer.wait(self.sim.t, time.monotonic()))
+            if self.pacer.drops != drops:
+                now = time.monotonic()
+                if now - self.behind_warned > 10.0:
+                    rospy.logwarn("simulator behind real_time_factor %.2f by more than ~max_lag %.3f s: "
+                                  "%.3f s of sim time dropped so far", self.rtf, self.np.max_lag,
+                                  self.pacer.dropped)
+                    self.behind_warned = now
             self._drain_plc_events()
             now = time.monotonic()
             if now - rate_t0 >= 1.0:
@@ -411,6 +415,7 @@ class SimNode:
         stat.add("sim time [s]", f"{self.sim.t:.3f}")
         stat.add("requested real-time factor", f"{self.rtf:g}")
         stat.add("achieved real-time factor", f"{self.wall_rtf:.2f}")
+        stat.add("sim time dropped behind schedule [s]", f"{self.pacer.dropped:.3f} in {self.pacer.drops} stalls")
         return stat
 
     def _diag_plc(self, stat):
