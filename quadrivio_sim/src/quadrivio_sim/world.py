@@ -430,8 +430,9 @@ class World:
     def ground_height(self, x: float, y: float) -> float:
         return 0.0 if self.heightfield is None else self.heightfield.height(x, y)
 
-    def ray_batch(self, starts: Sequence[Vec3], ends: Sequence[Vec3]) -> List[float]:
-        """Hit fraction of each ray (1.0: no hit) against ground and obstacles (world frame)."""
+    def ray_batch(self, starts, ends) -> List[float]:
+        """Hit fraction of each ray (1.0: no hit) against ground and obstacles (world frame);
+        ``starts`` and ``ends`` are (n, 3) arrays or sequences of points."""
         # numThreads=1: Bullet's default (-1) costs 50 % more per 271-ray batch here.
         hits = pybullet.rayTestBatch(starts, ends, numThreads=1, physicsClientId=self.rays_cid)
         return [h[2] if h[0] != -1 else 1.0 for h in hits]
