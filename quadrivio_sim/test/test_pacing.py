@@ -17,17 +17,16 @@ def run(pacer, steps, dt, cost, stall_at=None, stall=0.0):
     return starts
 
 
-def test_paces_at_the_factor():
-    p = Pacer(2.0, 0.05)
-    starts = run(p, 200, 0.01, 0.001)
-    (t0, w0), (t1, w1) = starts[0], starts[-1]
-    assert (t1 - t0) / (w1 - w0) == pytest.approx(2.0, rel=1e-9)
-    assert p.drops == 0
+def periods_after(starts, i):
+    """Wall time between consecutive step starts after step ``i``."""
+    after = starts[i + 1:]
+    return [wb - wa for (_, wa), (_, wb) in zip(after, after[1:])]
 
 
-def test_short_lag_is_made_up():
+@pytest.mark.parametrize("stall", [0.0, 0.02])  # none; 40 ms of sim time late at factor 2
+def test_paces_at_the_factor_and_makes_up_a_short_lag(stall):
     p = Pacer(2.0, 0.05)
-    starts = run(p, 200, 0.01, 0.001, stall_at=50, stall=0.02)  # 40 ms of sim time late
+    starts = run(p, 200, 0.01, 0.001, stall_at=50, stall=stall)
     (t0, w0), (t1, w1) = starts[0], starts[-1]
     assert (t1 - t0) / (w1 - w0) == pytest.approx(2.0, rel=1e-9)
     assert p.drops == 0
@@ -39,9 +38,7 @@ def test_long_stall_is_dropped_not_raced():
     assert p.drops == 1
     assert p.dropped == pytest.approx(0.2 - 0.01 + 0.002, abs=0.005)
     # After the stall every step takes its full wall period again: no burst.
-    after = starts[51:]
-    periods = [wb - wa for (_, wa), (_, wb) in zip(after, after[1:])]
-    assert min(periods) == pytest.approx(0.01 / 2.0, rel=1e-6)
+    assert min(periods_after(starts, 50)) == pytest.approx(0.01 / 2.0, rel=1e-6)
 
 
 def test_without_a_lag_budget_the_stall_is_raced():
@@ -49,9 +46,7 @@ def test_without_a_lag_budget_the_stall_is_raced():
     # behaviour this class exists to bound), which shows the test above can fail.
     p = Pacer(2.0, 10.0)
     starts = run(p, 200, 0.01, 0.001, stall_at=50, stall=0.1)
-    after = starts[51:]
-    periods = [wb - wa for (_, wa), (_, wb) in zip(after, after[1:])]
-    assert p.drops == 0 and min(periods) == pytest.approx(0.001)
+    assert p.drops == 0 and min(periods_after(starts, 50)) == pytest.approx(0.001)
 
 
 def test_as_fast_as_possible_never_waits():
