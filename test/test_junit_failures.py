@@ -11,7 +11,9 @@ XML = """<?xml version="1.0" encoding="utf-8"?>
 <testsuite errors="1" failures="1" tests="3">
   <testcase name="test_ok"/>
   <testcase name="test_rates"><failure type="AssertionError">/stereo/left: 1.88 Hz
-second line</failure></testcase>
+second line
+  File "/usr/lib/python3.11/unittest/case.py", line 57, in testPartExecutor
+    yield</failure></testcase>
   <testcase name="test_boom"><error type="RuntimeError" message="no clock"/></testcase>
 </testsuite>
 """

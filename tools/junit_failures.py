@@ -34,6 +34,9 @@ def main(argv=None):
     for _, case, kind, text in failures(args.dir):
         found = True
         lines = text.splitlines() or [""]
+        # The message, not the traceback that rostest appends after it.
+        cut = next((i for i, line in enumerate(lines) if line.strip().startswith('File "')), len(lines))
+        lines = lines[:max(cut, 1)]
         print(f"{case} [{kind}]: {lines[0]}")
         for line in lines[1:args.lines]:
             print(f"  {line}")
