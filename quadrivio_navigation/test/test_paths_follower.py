@@ -102,3 +102,157 @@ def test_follower_drives_the_eight_in_the_simulator():
     assert pp.status == DONE, pp.reason
     assert np.sqrt(np.mean(np.square(xte))) < 0.25
     assert max(xte) < 0.8
+
+
+# ----------------------------------------------------------------- planned routes
+from quadrivio_navigation.follower import directions, make_route  # noqa: E402
+
+
+def poses_along(points, heading):
+    pts = np.asarray(points, float)
+    return np.column_stack([pts, np.full(len(pts), heading)])
+
+
+def three_point_route():
+    """Forward 8 m east, back a quarter circle of 4 m radius to (4, -4) heading north, forward
+    6 m north: two cusps."""
+    fwd = poses_along(np.column_stack([np.linspace(0, 8, 81), np.zeros(81)]), 0.0)
+    arc = []
+    r = 4.0
+    for a in np.linspace(0, math.pi / 2, 60)[1:]:
+        # backing from (8, 0) with the heading turning from 0 to pi/2: the rear swings to (4, -4)
+        arc.append((8 - r * math.sin(a), -r * (1 - math.cos(a)), a))
+    arc = np.array(arc)
+    last = arc[-1]
+    up = np.column_stack([np.full(60, last[0]), last[1] + np.linspace(0, 6, 61)[1:], np.full(60, math.pi / 2)])
+    return np.vstack([fwd, arc, up])
+
+
+def test_route_splits_at_cusps():
+    poses = three_point_route()
+    d = directions(poses)
+    assert d[0] == 1 and -1 in d and d[-1] == 1
+    route = make_route(poses, SpeedProfileParams(speed=2.0))
+    assert [s.direction for s in route.segments] == [1, -1, 1]
+    for seg in route.segments:  # each segment stops at its end
+        assert seg.path.v[-1] == 0.0 and seg.path.v[0] > 0.0
+    assert route.segments[1].path.v.max() <= 1.0 + 1e-9  # reverse_speed
+    assert route.length == pytest.approx(8 + 4 * math.pi / 2 + 6, rel=0.02)
+    with pytest.raises(ValueError):
+        make_route(np.array([[0.0, 0.0, 0.0]]), SpeedProfileParams())
+
+
+def run_route(route, params=FollowerParams(), t_max=120.0, start=(0.0, 0.0, 0.0), on_cycle=None):
+    """Closed loop on the simulator core with the true pose; returns (follower, log)."""
+    from quadrivio_plc import protocol as P
+    from quadrivio_sim.actuators import load_actuators
+    from quadrivio_sim.paths import package_file
+    from quadrivio_sim.simulator import SimParams, Simulator
+    from quadrivio_sim.world import Pose2D, quat_to_rpy
+
+    v = load_vehicle()
+    sp = SimParams(spawn=Pose2D(*start))
+    sim = Simulator(sp, v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v))
+    pp = PurePursuit(params, route, v)
+    pp.set_limits(1.0, 1.0)
+    sim.plc.request_mode(P.MODE_AUTO)
+    log = []
+    while sim.t < t_max:
+        if sim.steps % 2 == 0:  # 50 Hz
+            pos, orn, vel, _ = sim.world.base_state()
+            yaw = quat_to_rpy(orn)[2]
+            speed = vel[0] * math.cos(yaw) + vel[1] * math.sin(yaw)
+            c = pp.update(pos[0], pos[1], yaw, speed, t=sim.t)
+            sim.plc.handle(sim.t, 0, P.Setpoint(P.SOURCE_AUTO, c.speed, c.handlebar, c.brake))
+            log.append((sim.t, pos[0], pos[1], yaw, speed, c.speed, c.handlebar, c.status, c.segment))
+            if on_cycle is not None:
+                on_cycle(sim.t, pp, pos, yaw, speed)
+                pp = on_cycle.pp if hasattr(on_cycle, "pp") else pp
+            if c.status != FOLLOWING:
+                break
+        sim.step()
+    sim.close()
+    return pp, np.array(log)
+
+
+def test_follower_drives_reverse_segments_and_cusps_to_the_goal():
+    poses = three_point_route()
+    route = make_route(poses, SpeedProfileParams(speed=1.5))
+    pp, log = run_route(route)
+    assert pp.status == DONE, pp.reason
+    segs = log[:, 8]
+    assert set(segs.tolist()) == {0, 1, 2}
+    # backwards during the middle segment, forwards otherwise
+    assert np.all(log[segs == 1, 5] <= 1e-9) and np.min(log[segs == 1, 4]) < -0.5
+    assert np.all(log[segs != 1, 5] >= -1e-9)
+    # the route's geometry is followed: every position close to the planned poses
+    d = [np.min(np.hypot(poses[:, 0] - x, poses[:, 1] - y)) for x, y in log[:, 1:3]]
+    assert max(d) < 0.6
+    gx, gy, gth = poses[-1]
+    x, y, yaw = log[-1, 1:4]
+    assert math.hypot(gx - x, gy - y) < 0.5 and abs(math.atan2(math.sin(yaw - gth), math.cos(yaw - gth))) < 0.26
+
+
+def test_follower_slows_down_to_the_end_instead_of_braking_hard():
+    pts = np.column_stack([np.linspace(0, 25, 251), np.zeros(251)])
+    route = make_route(poses_along(pts, 0.0), SpeedProfileParams(speed=2.0, accel=1.0, decel=1.0))
+    pp, log = run_route(route)
+    assert pp.status == DONE, pp.reason
+    end_speed = abs(log[-1, 4])
+    assert end_speed < 0.1  # stopped, not rolling at 1.2 m/s
+    assert abs(log[-1, 1] - 25.0) < 0.35  # at the goal, neither short nor past it
+    sp = log[log[:, 7] == FOLLOWING, 5]
+    assert np.max(np.abs(np.diff(sp))) <= 1.0 * 0.02 + 1e-6  # setpoint slew within the profile's limits
+
+
+def test_follower_misses_the_goal_heading_and_says_so():
+    # a path whose goal heading is not the heading it arrives with: 90 deg off
+    pts = np.column_stack([np.linspace(0, 10, 101), np.zeros(101)])
+    poses = poses_along(pts, 0.0)
+    route = make_route(poses, SpeedProfileParams(speed=1.5))
+    route.goal_heading = math.pi / 2
+    pp, _ = run_route(route)
+    assert pp.status == ABORTED and "from the goal" in pp.reason
+
+
+def test_a_new_route_while_driving_does_not_jump_the_setpoints():
+    pts = np.column_stack([np.linspace(0, 40, 401), np.zeros(401)])
+    route = make_route(poses_along(pts, 0.0), SpeedProfileParams(speed=2.0))
+    v = load_vehicle()
+
+    class Replan:
+        done = False
+
+        def __call__(self, t, pp, pos, yaw, speed):
+            if not self.done and t > 8.0:  # at speed: a new route from where the vehicle is
+                self.done = True
+                x0 = pos[0]
+                new = np.column_stack([np.linspace(x0, x0 + 15, 151), np.linspace(0, 3, 151)])
+                r2 = make_route(poses_along(new, math.atan2(3, 15)), SpeedProfileParams(speed=2.0), v_start=speed)
+                self.pp = PurePursuit(FollowerParams(), r2, v, pp.sp_speed, pp.sp_handlebar, pp.t_last)
+                self.pp.set_limits(1.0, 1.0)
+                self.t = t
+
+    hook = Replan()
+    pp, log = run_route(route, on_cycle=hook)
+    assert hook.done and pp.status == DONE, pp.reason
+    near = log[np.abs(log[:, 0] - hook.t) < 1.0]
+    assert np.max(np.abs(np.diff(near[:, 5]))) <= 0.02 + 1e-6  # speed: no step
+    assert np.max(np.abs(np.diff(near[:, 6]))) <= v.steering.max_rate * 0.02 + 1e-6  # handlebar: no step
+    assert near[:, 5].min() > 1.5  # and the vehicle kept its speed
+
+
+def test_controlled_stop_on_request():
+    pts = np.column_stack([np.linspace(0, 40, 401), np.zeros(401)])
+    route = make_route(poses_along(pts, 0.0), SpeedProfileParams(speed=2.0))
+
+    class Stop:
+        def __call__(self, t, pp, pos, yaw, speed):
+            if t > 6.0:
+                pp.stop("planner failed: test")
+
+    pp, log = run_route(route, on_cycle=Stop())
+    assert pp.status == ABORTED and "planner failed" in pp.reason
+    assert abs(log[-1, 4]) < 0.1
+    following = log[log[:, 7] == FOLLOWING, 5]
+    assert np.max(np.abs(np.diff(following))) <= 0.02 + 1e-6  # ramped down, not slammed

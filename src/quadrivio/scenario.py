@@ -7,8 +7,10 @@ it at start-up (``/scenario/<section>``)::
     sim:            quadrivio_sim/config/sim.yaml         (terrain, spawn, obstacles, physics)
     sensors:        gps | imu | mag | laser_front | laser_rear -> quadrivio_sim/config/<sensor>.yaml
     localization:   quadrivio_localization/config/localization.yaml
-    path:           quadrivio_navigation/config/path.yaml
+    path:           quadrivio_navigation/config/path.yaml     (kind goal: the planner drives to path.goal)
     follower:       quadrivio_navigation/config/follower.yaml
+    map:            quadrivio_navigation/config/map_server.yaml (the map: published on /map, obstacles in the simulator)
+    planner:        quadrivio_navigation/config/planner.yaml
     run:            this module's RunParams (real-time factor, time limit, end)
 
 :func:`load_scenario` validates every section against the same dataclasses the nodes
@@ -35,7 +37,7 @@ class RunParams:
     gps_nmea: bool = param(False, doc="GPS through NMEA and the real driver")
 
 
-SECTIONS = ("sim", "sensors", "localization", "path", "follower", "run")
+SECTIONS = ("sim", "sensors", "localization", "path", "follower", "map", "planner", "run")
 SENSORS = ("gps", "imu", "mag", "laser_front", "laser_rear", "camera_left", "camera_right")
 
 
@@ -69,7 +71,9 @@ def _validators():
     """(section path, dataclass, defaults file) of every node a scenario can configure."""
     from quadrivio_localization.smoother import LocalizerParams
     from quadrivio_navigation.follower import FollowerConfig
+    from quadrivio_navigation.maps import MapParams
     from quadrivio_navigation.paths import PathParams
+    from quadrivio_navigation.planning import PlannerParams
     from quadrivio_sim.adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams,
                                               LaserAdapterParams, MagAdapterParams)
     from quadrivio_sim.paths import package_file as sim_file
@@ -89,6 +93,8 @@ def _validators():
     yield "localization", LocalizerParams, pkg("quadrivio_localization", "config", "localization.yaml")
     yield "path", PathParams, pkg("quadrivio_navigation", "config", "path.yaml")
     yield "follower", FollowerConfig, pkg("quadrivio_navigation", "config", "follower.yaml")
+    yield "map", MapParams, pkg("quadrivio_navigation", "config", "map_server.yaml")
+    yield "planner", PlannerParams, pkg("quadrivio_navigation", "config", "planner.yaml")
 
 
 def _section(data: Dict[str, Any], path: str) -> Any:
@@ -129,7 +135,32 @@ def load_scenario(name_or_path: str) -> Scenario:
         if over is not None:
             replace_nested(_defaults(cls, cfg), over, f"{path}: {section.replace('/', '.')}")
     run = from_mapping(RunParams, data.get("run") or {}, path, "run")
+    _check_map(data, path)
     return Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
+
+
+def map_file(s: "Scenario") -> str:
+    """The scenario's map file (resolved against the scenario's folder), '' without one."""
+    from quadrivio_navigation.maps import resolve_map_file
+
+    return resolve_map_file(str((s.data.get("map") or {}).get("file", "")), s.path)
+
+
+def _check_map(data: Dict[str, Any], path: str) -> None:
+    """The map loads, and a goal (path kind goal) lies on it."""
+    from quadrivio_navigation.maps import load_map, resolve_map_file
+
+    file = resolve_map_file(str((data.get("map") or {}).get("file", "")), path)
+    kind = (data.get("path") or {}).get("kind")
+    if not file:
+        if kind == "goal":
+            raise ConfigError(f"{path}: path kind 'goal' needs a map (map: file:)")
+        return
+    grid = load_map(file)  # MapError (a ConfigError) names the file and the problem
+    if kind == "goal":
+        goal = (data.get("path") or {}).get("goal", (0.0, 0.0, 0.0))
+        if not grid.contains(goal[0], goal[1]):
+            raise ConfigError(f"{path}: path.goal {list(goal)} is outside the map {file}")
 
 
 def summary(s: Scenario) -> Tuple[str, ...]:

@@ -32,3 +32,13 @@ def tilt_from_gravity(f: Sequence[float]) -> Tuple[float, float]:
     """Roll and pitch [rad] of a body whose accelerometer reads the specific force ``f`` at rest."""
     fx, fy, fz = f
     return math.atan2(fy, fz), math.atan2(-fx, math.hypot(fy, fz))
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    """Yaw [rad] (ZYX) of a quaternion ``(x, y, z, w)``."""
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def quaternion_from_yaw(yaw: float) -> Tuple[float, float, float, float]:
+    """The quaternion ``(x, y, z, w)`` of a rotation by ``yaw`` [rad] about z."""
+    return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)

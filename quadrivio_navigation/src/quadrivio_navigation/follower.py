@@ -1,27 +1,48 @@
-"""Trajectory follower: pure pursuit on the rear axle, speed from the path's profile.
+"""Trajectory follower: pure pursuit on the rear axle, forwards and in reverse, with cusps.
 
-For the rear axle centre at ``(x, y, theta)`` and the path point ``L_d`` ahead of the
-nearest one (``L_d = clip(k v, L_min, L_max)``, shortened near the end), with ``alpha``
-the angle from the heading to that point::
+A route is a list of segments, each driven in one direction (+1 forward, -1 reverse): a
+planned path is split where its driving direction changes (a cusp). On a segment, with
+the rear axle centre at ``(x, y, theta)``, the motion heading ``psi = theta`` forward and
+``theta + pi`` in reverse, the path point ``L_d`` ahead of the nearest one
+(``L_d = clip(k |v|, L_min, L_max)``; beyond the segment's end, on the straight line
+continuing its last heading) and ``alpha`` the angle from ``psi`` to that point::
 
-    kappa = 2 sin(alpha) / L_d,   delta = atan(L kappa),   handlebar = delta / ratio
+    kappa = 2 sin(alpha) / L_d               (curvature of the motion, left positive)
+    delta = atan(L kappa)  forward,   delta = -atan(L kappa)  in reverse
+    handlebar = delta / ratio
 
-clipped to the handlebar's limit. The speed setpoint is the profile's speed at the
-nearest point (at least ``min_speed`` until the goal). The follower stops (status DONE)
-within ``goal_tolerance`` of the end, and aborts (status ABORTED, full stop) when the
-cross-track error exceeds ``max_cross_track`` or the pose is older than
-``max_pose_age``: a stale pose must not steer the vehicle.
+(the rear axle moves on curvature ``tan(delta) / L`` about its motion heading forwards,
+and ``-tan(delta) / L`` backwards), clipped to the handlebar's limit. The speed setpoint
+is the segment's profile at the nearest point (at least ``min_speed``, at most
+``reverse_speed`` backwards), signed by the direction, and 0 within ``stop_distance`` of
+the segment's end: the profile brings the vehicle to rest at every cusp and at the goal.
+
+At a cusp, once stopped (``|v| < stop_speed``) within ``cusp_tolerance`` of it, the next
+segment starts. At the route's end, once stopped, the follower is DONE when it is within
+``goal_tolerance`` and ``heading_tolerance`` of the goal pose, and ABORTED (missed the
+goal, with the errors) otherwise. It aborts at once (full stop) when the cross-track
+error exceeds ``max_cross_track`` or the pose is older than ``max_pose_age``: a stale pose
+must not steer the vehicle. :meth:`PurePursuit.stop` ends a route with a controlled stop.
+
+Setpoints change no faster than the vehicle can follow when ``update`` gets the time: the
+speed by the profile's acceleration and deceleration limits, the handlebar by the
+steering servo's rate, so a new route while driving (a replan) gives no jump; an abort
+brakes at once.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import List, Optional, Sequence
+
+import numpy as np
+
 from quadrivio_description.config import param
 from quadrivio_description.kinematics import delta_for_curvature
 from quadrivio_description.vehicle import VehicleParams
 
-from .paths import Path, SpeedProfileParams, Tracker
+from .paths import Path, SpeedProfileParams, Tracker, make_path
 
 WAITING, FOLLOWING, DONE, ABORTED = 0, 1, 2, 3
 STATUS_NAMES = {WAITING: "WAITING", FOLLOWING: "FOLLOWING", DONE: "DONE", ABORTED: "ABORTED"}
@@ -32,8 +53,13 @@ class FollowerParams:
     lookahead_gain: float = param(0.8, lo=0.0, hi=10.0, unit="s", doc="lookahead distance per m/s")
     lookahead_min: float = param(1.8, lo=0.1, hi=50.0, unit="m", doc="shortest lookahead")
     lookahead_max: float = param(6.0, lo=0.1, hi=100.0, unit="m", doc="longest lookahead")
-    min_speed: float = param(0.3, lo=0.0, hi=5.0, unit="m/s", doc="speed floor until the goal")
+    min_speed: float = param(0.3, lo=0.0, hi=5.0, unit="m/s", doc="speed floor until a segment's end")
+    reverse_speed: float = param(1.0, lo=0.1, hi=10.0, unit="m/s", doc="speed limit in reverse")
     goal_tolerance: float = param(0.5, lo=0.05, hi=10.0, unit="m", doc="done within this of the path's end")
+    heading_tolerance: float = param(0.26, lo=0.01, hi=3.2, unit="rad", doc="... and within this of its heading")
+    stop_distance: float = param(0.1, lo=0.0, hi=5.0, unit="m", doc="speed setpoint 0 this far from a segment's end")
+    stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
+    cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m", doc="change direction within this of a cusp")
     max_cross_track: float = param(4.0, lo=0.1, hi=100.0, unit="m", doc="abort beyond this cross-track error")
     max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="abort when the pose is older than this")
     stop_brake: float = param(0.6, lo=0.0, hi=1.0, doc="brake when done or aborted")
@@ -54,58 +80,233 @@ class FollowerConfig:
 
 @dataclass
 class Command:
-    speed: float  # [m/s]
+    speed: float  # [m/s] signed: negative in reverse
     handlebar: float  # [rad]
     brake: float  # [1]
     status: int
-    cross_track: float  # [m] signed, left positive
-    progress: float  # [1] fraction of the path's length done
-    remaining: float  # [m]
+    cross_track: float  # [m] signed, left of the motion positive
+    progress: float  # [1] fraction of the route's length done
+    remaining: float  # [m] route length still to go
     reason: str = ""
+    segment: int = 0
+    direction: int = 1
+
+
+@dataclass
+class Segment:
+    path: Path  # x, y, theta = heading of the motion
+    direction: int  # +1 forward, -1 reverse
+
+
+class Route:
+    """Segments of one driving direction each, and the goal pose (the vehicle's heading)."""
+
+    def __init__(self, segments: List[Segment], goal_heading: float) -> None:
+        if not segments:
+            raise ValueError("a route needs at least one segment")
+        self.segments = segments
+        self.goal_heading = goal_heading
+        self.lengths = [seg.path.length for seg in segments]
+        self.length = float(sum(self.lengths))
+
+    @property
+    def goal(self):
+        p = self.segments[-1].path
+        return float(p.x[-1]), float(p.y[-1]), self.goal_heading
+
+    def xy(self) -> np.ndarray:
+        return np.vstack([seg.path.xy() for seg in self.segments])
+
+
+def directions(poses: np.ndarray) -> np.ndarray:
+    """Driving direction (+1/-1) of each step between poses (x, y, vehicle heading): forward
+    when the step points along the heading. Steps too short to tell take the previous one's."""
+    d = np.diff(poses[:, :2], axis=0)
+    dot = d[:, 0] * np.cos(poses[:-1, 2]) + d[:, 1] * np.sin(poses[:-1, 2])
+    out = np.where(dot < 0.0, -1, 1).astype(int)
+    tiny = np.hypot(d[:, 0], d[:, 1]) < 1e-6
+    for i in np.flatnonzero(tiny):
+        out[i] = out[i - 1] if i > 0 else 1
+    return out
+
+
+def make_route(poses: Sequence[Sequence[float]], profile: SpeedProfileParams, reverse_speed: float = 1.0,
+               v_start: float = 0.0, ds: float = 0.1) -> Route:
+    """A route through ``poses`` (x, y, vehicle heading), split at every change of driving
+    direction; ``v_start`` [m/s, signed] is the vehicle's speed when it takes the route."""
+    poses = np.asarray(poses, dtype=float)
+    if poses.ndim != 2 or poses.shape[1] < 3 or len(poses) < 2:
+        raise ValueError("a route needs at least 2 poses (x, y, heading)")
+    if not np.all(np.isfinite(poses[:, :3])):
+        raise ValueError("a route's poses must be finite")
+    dirs = directions(poses)
+    segments: List[Segment] = []
+    start = 0
+    for i in range(1, len(dirs) + 1):
+        if i == len(dirs) or dirs[i] != dirs[start]:
+            pts = poses[start:i + 1, :2]
+            d = int(dirs[start])
+            if np.sum(np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))) > 1e-3:
+                v0 = abs(v_start) if not segments and v_start * d > 0 else 0.0
+                path = make_path(pts, profile, ds, v_start=v0, v_max=None if d > 0 else reverse_speed)
+                segments.append(Segment(path, d))
+            start = i
+    if not segments:
+        raise ValueError("a route needs poses that move")
+    return Route(segments, float(poses[-1, 2]))
+
+
+def _wrap(a: float) -> float:
+    return math.atan2(math.sin(a), math.cos(a))
 
 
 class PurePursuit:
-    def __init__(self, p: FollowerParams, path: Path, vehicle: VehicleParams) -> None:
-        self.p, self.path, self.v = p, path, vehicle
-        self.tracker = Tracker(path, p.search_window)
+    def __init__(self, p: FollowerParams, route, vehicle: VehicleParams, last_speed: float = 0.0,
+                 last_handlebar: float = 0.0, last_time: Optional[float] = None) -> None:
+        """``route``: a :class:`Route` or a forward :class:`Path`; ``last_speed``,
+        ``last_handlebar`` and ``last_time``: the setpoints sent before and when (a replan
+        continues from them)."""
+        if isinstance(route, Path):
+            route = Route([Segment(route, 1)], float(route.theta[-1]))
+        self.p, self.route, self.v = p, route, vehicle
+        self.k = 0
+        self.tracker = Tracker(route.segments[0].path, p.search_window)
         self.status = FOLLOWING
         self.reason = ""
         self.max_handlebar = vehicle.steering.max_angle
+        self.rate = vehicle.steering.max_rate
+        self.stopping = False
+        self.t_last: Optional[float] = last_time
+        self.sp_speed, self.sp_handlebar = last_speed, last_handlebar
+        self.accel = self.decel = math.inf
 
-    def stop(self, status: int, reason: str, xte: float = 0.0, progress: float = 0.0, remaining: float = 0.0) -> Command:
-        self.status, self.reason = status, reason
-        return Command(0.0, 0.0, self.p.stop_brake, status, xte, progress, remaining, reason)
+    @property
+    def path(self) -> Path:
+        return self.route.segments[self.k].path
 
-    def update(self, x: float, y: float, theta: float, speed: float, pose_age: float = 0.0) -> Command:
-        path = self.path
+    def set_limits(self, accel: float, decel: float) -> None:
+        """Speed setpoint slew limits [m/s^2] (the speed profile's)."""
+        self.accel, self.decel = accel, decel
+
+    # ------------------------------------------------------------------ ending
+    def abort(self, reason: str, xte: float = 0.0) -> Command:
+        """Stop at once with the brake (a stale pose, off the path)."""
+        self.status, self.reason = ABORTED, reason
+        self.sp_speed = self.sp_handlebar = 0.0
+        return Command(0.0, 0.0, self.p.stop_brake, ABORTED, xte, self._progress(), self._remaining(), reason, self.k,
+                       self.route.segments[self.k].direction)
+
+    def stop(self, reason: str) -> None:
+        """End the route with a controlled stop: decelerate along the path, then ABORTED."""
+        if self.status == FOLLOWING:
+            self.stopping, self.reason = True, reason
+
+    def _done_command(self) -> Command:
+        return Command(0.0, self.sp_handlebar if self.status == DONE else 0.0, self.p.stop_brake, self.status, 0.0,
+                       1.0 if self.status == DONE else self._progress(), 0.0 if self.status == DONE else
+                       self._remaining(), self.reason, self.k, self.route.segments[self.k].direction)
+
+    def _progress(self) -> float:
+        done = sum(self.route.lengths[:self.k]) + float(self.path.s[self.tracker.i])
+        return done / max(self.route.length, 1e-9)
+
+    def _remaining(self) -> float:
+        return self.route.length - sum(self.route.lengths[:self.k]) - float(self.path.s[self.tracker.i])
+
+    # ------------------------------------------------------------------ update
+    def update(self, x: float, y: float, theta: float, speed: float, pose_age: float = 0.0,
+               t: Optional[float] = None) -> Command:
+        """One cycle from the pose (x, y, heading), the speed [m/s, signed], the pose's age
+        [s] and, for slew-limited setpoints, the time [s]."""
         if self.status in (DONE, ABORTED):
-            return Command(0.0, 0.0, self.p.stop_brake, self.status, 0.0, 1.0 if self.status == DONE else 0.0, 0.0,
-                           self.reason)
+            return self._done_command()
         if pose_age > self.p.max_pose_age:
-            return self.stop(ABORTED, f"pose {pose_age:.2f} s old (> {self.p.max_pose_age} s)")
+            return self.abort(f"pose {pose_age:.2f} s old (> {self.p.max_pose_age} s)")
+        seg = self.route.segments[self.k]
+        path, d = seg.path, seg.direction
         i = self.tracker.nearest(x, y)
         xte = self.tracker.cross_track(x, y, i)
-        remaining = path.length - float(path.s[i])
-        progress = float(path.s[i]) / path.length
         if abs(xte) > self.p.max_cross_track:
-            return self.stop(ABORTED, f"cross-track error {xte:.2f} m (> {self.p.max_cross_track} m)", xte, progress,
-                             remaining)
-        end_dist = math.hypot(path.x[-1] - x, path.y[-1] - y)
-        if remaining < self.p.goal_tolerance + 1.0 and end_dist < self.p.goal_tolerance:
-            return self.stop(DONE, "goal reached", xte, 1.0, 0.0)
+            return self.abort(f"cross-track error {xte:.2f} m (> {self.p.max_cross_track} m)", xte)
+        seg_left = path.length - float(path.s[i])
+        end_x, end_y = float(path.x[-1]), float(path.y[-1])
+        end_dist = math.hypot(end_x - x, end_y - y)
+        # how far from the segment's end along its last heading (negative: passed it)
+        along_end = (end_x - x) * math.cos(path.theta[-1]) + (end_y - y) * math.sin(path.theta[-1])
+        stopped = abs(speed) < self.p.stop_speed
+        last = self.k == len(self.route.segments) - 1
+        # at the end: by arc length, or (close to it) by having reached the line through it
+        at_end = seg_left <= self.p.stop_distance or (seg_left < self.p.lookahead_min and
+                                                      along_end <= self.p.stop_distance)
+        if stopped and at_end:
+            if not last and end_dist <= self.p.cusp_tolerance and not self.stopping:
+                self.k += 1  # the cusp: take the next segment, from rest
+                self.tracker = Tracker(self.route.segments[self.k].path, self.p.search_window)
+                self.sp_speed = 0.0
+                return self.update(x, y, theta, speed, pose_age, t)
+            if last or self.stopping:
+                return self._finish(x, y, theta)
+        if self.stopping and stopped:
+            self.status = ABORTED
+            return self._done_command()
+        # pure pursuit on the motion heading
+        psi = theta if d > 0 else theta + math.pi
         ld = min(self.p.lookahead_max, max(self.p.lookahead_min, self.p.lookahead_gain * abs(speed)))
         target_s = float(path.s[i]) + ld
-        j = min(len(path) - 1, int(math.ceil(target_s / max(1e-9, path.s[1] - path.s[0]))))
-        tx, ty = path.x[j], path.y[j]
+        if target_s <= path.length:
+            j = int(np.searchsorted(path.s, target_s))
+            tx, ty = float(path.x[j]), float(path.y[j])
+        else:  # beyond the end: on the line that continues the segment's last heading
+            extra = target_s - path.length
+            tx = end_x + extra * math.cos(path.theta[-1])
+            ty = end_y + extra * math.sin(path.theta[-1])
         dist = max(1e-3, math.hypot(tx - x, ty - y))
-        alpha = math.atan2(ty - y, tx - x) - theta
+        alpha = math.atan2(ty - y, tx - x) - psi
         kappa = 2.0 * math.sin(alpha) / dist
-        h = delta_for_curvature(kappa, self.v.wheelbase) / self.v.steering.ratio
+        delta = delta_for_curvature(kappa, self.v.wheelbase)
+        h = (delta if d > 0 else -delta) / self.v.steering.ratio
         h = max(-self.max_handlebar, min(self.max_handlebar, h))
-        v_sp = max(self.p.min_speed, float(path.v[i])) if remaining > self.p.goal_tolerance else 0.0
-        return Command(v_sp, h, 0.0, FOLLOWING, xte, progress, remaining)
+        if self.stopping or at_end:
+            v_sp = 0.0
+        else:
+            v_sp = max(self.p.min_speed, float(path.v[i]))
+            if d < 0:
+                v_sp = min(v_sp, self.p.reverse_speed)
+        v_sp *= d
+        v_sp, h = self._slew(v_sp, h, t)
+        return Command(v_sp, h, 0.0, FOLLOWING, xte, self._progress(), self._remaining(),
+                       self.reason if self.stopping else "", self.k, d)
+
+    def _finish(self, x: float, y: float, theta: float) -> Command:
+        gx, gy, gth = self.route.goal
+        e = math.hypot(gx - x, gy - y)
+        eh = abs(_wrap(gth - theta))
+        if self.stopping:
+            self.status = ABORTED
+        elif e <= self.p.goal_tolerance and eh <= self.p.heading_tolerance:
+            self.status, self.reason = DONE, f"goal reached: {e:.2f} m, {math.degrees(eh):.1f} deg off"
+        else:
+            self.status = ABORTED
+            self.reason = (f"stopped {e:.2f} m and {math.degrees(eh):.1f} deg from the goal (tolerance "
+                           f"{self.p.goal_tolerance} m, {math.degrees(self.p.heading_tolerance):.1f} deg)")
+        return self._done_command()
+
+    def _slew(self, v_sp: float, h: float, t: Optional[float]):
+        if t is None or self.t_last is None:
+            self.t_last = t
+            self.sp_speed, self.sp_handlebar = v_sp, h
+            return v_sp, h
+        dt = max(0.0, t - self.t_last)
+        self.t_last = t
+        prev = self.sp_speed
+        speeding_up = abs(v_sp) > abs(prev) and v_sp * prev >= 0.0
+        limit = (self.accel if speeding_up else self.decel) * dt
+        v = prev + max(-limit, min(limit, v_sp - prev))
+        dh = self.rate * dt
+        hh = self.sp_handlebar + max(-dh, min(dh, h - self.sp_handlebar))
+        self.sp_speed, self.sp_handlebar = v, hh
+        return v, hh
 
 
 def no_pose_command(p: FollowerParams) -> Command:
     return Command(0.0, 0.0, p.stop_brake, WAITING, 0.0, 0.0, math.nan, "no pose yet")
-

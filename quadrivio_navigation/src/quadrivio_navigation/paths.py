@@ -40,9 +40,12 @@ class SpeedProfileParams:
 
 @dataclass(frozen=True)
 class PathParams:
-    kind: str = param("figure_eight", choices=("figure_eight", "waypoints"))
+    kind: str = param("figure_eight", choices=("figure_eight", "waypoints", "goal"),
+                      doc="a reference path, or a goal the planner plans to")
     figure_eight: FigureEightParams = param(FigureEightParams())
     waypoints: Tuple[Tuple[float, float], ...] = param((), unit="m", doc="in the vehicle's start frame (x ahead)")
+    goal: Tuple[float, float, float] = param((0.0, 0.0, 0.0), lo=-1e6, hi=1e6, unit="m, m, rad",
+                                             doc="kind goal: the goal pose in the map frame")
     ds: float = param(0.1, lo=0.01, hi=5.0, unit="m", doc="spacing of the published poses")
     frame_id: str = param("map")
 
@@ -107,30 +110,38 @@ def resample(points: np.ndarray, ds: float) -> np.ndarray:
     return np.column_stack([np.interp(grid, s, points[:, 0]), np.interp(grid, s, points[:, 1])])
 
 
-def make_path(points: np.ndarray, profile: SpeedProfileParams, ds: float = 0.1) -> Path:
-    """A :class:`Path` (heading, curvature, arc length, speed profile) through ``points``."""
+def make_path(points: np.ndarray, profile: SpeedProfileParams, ds: float = 0.1, v_start: float = 0.0,
+              v_max: Optional[float] = None) -> Path:
+    """A :class:`Path` (heading of the motion, curvature, arc length, speed profile)
+    through ``points``; the profile starts from ``v_start`` [m/s] (a vehicle already
+    moving) and never exceeds ``v_max`` (default the profile's speed)."""
     pts = resample(np.asarray(points, float), ds)
-    if len(pts) < 3:
-        raise ValueError("a path needs at least 3 distinct points")
+    if len(pts) < 2 or (len(pts) == 2 and math.hypot(*(pts[1] - pts[0])) < 1e-9):
+        raise ValueError("a path needs at least 2 distinct points")
+    if len(pts) == 2:  # a short straight: sample it so that the geometry below works
+        pts = np.column_stack([np.linspace(pts[0, 0], pts[1, 0], 3), np.linspace(pts[0, 1], pts[1, 1], 3)])
     dx, dy = np.gradient(pts[:, 0]), np.gradient(pts[:, 1])
     theta = np.unwrap(np.arctan2(dy, dx))
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1])))])
     kappa = np.gradient(theta, s)
-    v = speed_profile(s, kappa, profile)
+    v = speed_profile(s, kappa, profile, v_start, v_max)
     return Path(pts[:, 0], pts[:, 1], np.arctan2(np.sin(theta), np.cos(theta)), kappa, s, v)
 
 
-def speed_profile(s: np.ndarray, kappa: np.ndarray, p: SpeedProfileParams) -> np.ndarray:
-    """See the module docstring."""
+def speed_profile(s: np.ndarray, kappa: np.ndarray, p: SpeedProfileParams, v_start: float = 0.0,
+                  v_max: Optional[float] = None) -> np.ndarray:
+    """See the module docstring; the acceleration limit applies from ``v_start``."""
+    top = p.speed if v_max is None else min(p.speed, v_max)
     with np.errstate(divide="ignore"):
-        v = np.minimum(p.speed, np.sqrt(p.max_lateral_accel / np.maximum(np.abs(kappa), 1e-9)))
+        v = np.minimum(top, np.sqrt(p.max_lateral_accel / np.maximum(np.abs(kappa), 1e-9)))
     # smooth the curvature limit both ways with the acceleration limits
+    v[0] = min(v[0], max(v_start, 0.0))
     for i in range(1, len(s)):
         v[i] = min(v[i], math.sqrt(v[i - 1] ** 2 + 2 * p.accel * (s[i] - s[i - 1])))
     v[-1] = 0.0
     for i in range(len(s) - 2, -1, -1):
         v[i] = min(v[i], math.sqrt(v[i + 1] ** 2 + 2 * p.decel * (s[i + 1] - s[i])))
-    v[0] = max(v[0], min(p.speed, 0.3))  # start moving
+    v[0] = max(v[0], min(top, 0.3))  # start moving
     return v
 
 

@@ -31,7 +31,8 @@ from .actuators import ActuatorParams, LowLevelControl
 from .plc_emulator import PlcLogic, PlcParams
 from .script import SetpointScript
 from .sensors import (CameraSensor, GpsSensor, ImuSensor, LaserSensor, MagSensor, SensorsParams)
-from .terrain import TerrainParams
+from quadrivio_description.terrain import TerrainParams
+from quadrivio_navigation.maps import MapParams, load_map, obstacles_from_grid
 from .world import Obstacle, PhysicsParams, Pose2D, World
 
 
@@ -42,6 +43,7 @@ class SimParams:
     terrain: TerrainParams = param(TerrainParams())
     spawn: Pose2D = param(Pose2D(), doc="initial pose of base_link in the map frame")
     obstacles: Tuple[Obstacle, ...] = param((), doc="static boxes and cylinders (trees, buildings)")
+    map: MapParams = param(MapParams(), doc="a map_server map whose occupied cells become static obstacles")
     seed: int = param(0, lo=0, hi=2 ** 63 - 1, doc="seed of every random draw in the simulator (terrain)")
     ground_truth_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="/ground_truth/odom rate")
     joint_states_rate: float = param(20.0, lo=1.0, hi=1000.0, unit="Hz", doc="/joint_states rate")
@@ -83,8 +85,13 @@ class Simulator:
         self.vehicle = vehicle
         self.dt = params.physics.dt
         self.rng = np.random.default_rng(params.seed)
+        blocks = []
+        if params.map.file:
+            grid = load_map(params.map.file)  # MapError names the file and the problem
+            blocks = obstacles_from_grid(grid, params.map.occupied, params.map.tree_size)
+        self.map_blocks = blocks
         self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
-                           params.spawn)
+                           params.spawn, blocks, params.map.obstacle_height)
         self.control = LowLevelControl(actuators, vehicle, params.plc.cycle)
         self.plc = PlcLogic(params.plc, self.control)
         s = params.sensors

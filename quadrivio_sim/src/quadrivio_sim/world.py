@@ -32,7 +32,7 @@ from quadrivio_description.config import ConfigError, param
 from quadrivio_description.kinematics import ackermann_wheel_angles
 from quadrivio_description.vehicle import GRAVITY, VehicleParams
 
-from .terrain import Heightfield, TerrainParams, build_heightfield
+from quadrivio_description.terrain import Heightfield, TerrainParams, build_heightfield
 
 Vec3 = Tuple[float, float, float]
 Quat = Tuple[float, float, float, float]  # x, y, z, w (PyBullet order)
@@ -151,7 +151,10 @@ class World:
 
     def __init__(self, vehicle: VehicleParams, urdf_text: str, physics: PhysicsParams,
                  terrain: TerrainParams, rng: np.random.Generator,
-                 obstacles: Sequence[Obstacle] = (), spawn: Pose2D = Pose2D()) -> None:
+                 obstacles: Sequence[Obstacle] = (), spawn: Pose2D = Pose2D(), map_blocks: Sequence = (),
+                 block_height: float = 1.5) -> None:
+        """``map_blocks``: obstacles made from a map's occupied cells
+        (:func:`quadrivio_navigation.maps.obstacles_from_grid`), ``block_height`` [m] tall."""
         self.v = vehicle
         self.physics = physics
         self.terrain = terrain
@@ -166,6 +169,8 @@ class World:
         self.heightfield: Optional[Heightfield] = build_heightfield(terrain, rng)
         self.ground = self._make_ground(self.pb)
         self.obstacle_ids = [self._make_obstacle(self.pb, o) for o in obstacles]
+        meshes = self._block_meshes(map_blocks, block_height)
+        self.map_ids = [self._make_mesh(self.pb, v, i) for v, i in meshes]
         # A second, static client with the same ground and obstacles and no vehicle:
         # sensor rays are cast there (3-5x cheaper than among the vehicle's links).
         self.rays = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
@@ -173,6 +178,8 @@ class World:
         self._make_ground(self.rays)
         for o in obstacles:
             self._make_obstacle(self.rays, o)
+        for v, i in meshes:
+            self._make_mesh(self.rays, v, i)
         self.frames = fixed_frames(urdf_text)
         self.robot = self._load_vehicle(urdf_text)
         self._index_joints()
@@ -208,6 +215,46 @@ class World:
         body = pb.createMultiBody(0, shape, basePosition=[o.xy[0], o.xy[1], z0 + 0.5 * o.size[2]],
                                   baseOrientation=pb.getQuaternionFromEuler([0.0, 0.0, o.yaw]))
         pb.changeVisualShape(body, -1, rgbaColor=[0.3, 0.5, 0.25, 1.0] if o.kind == "cylinder" else [0.6, 0.6, 0.6, 1.0])
+        return body
+
+    TILE = 25.0  # [m] map obstacles are merged into one static mesh per tile of this size
+
+    def _block_meshes(self, blocks: Sequence, height: float) -> List[Tuple[list, list]]:
+        """Triangle meshes (vertices, indices), one per tile, of the map's obstacles: boxes
+        as boxes, cylinders as 16-sided prisms around them, standing on the ground (sunk
+        0.2 m into it so that a slope leaves no gap). One static mesh per tile keeps a map of
+        thousands of obstacles as cheap for Bullet's collision and ray tests as a few bodies
+        (a compound shape holds at most 16 children)."""
+        tiles: Dict[Tuple[int, int], Tuple[list, list]] = {}
+        ring = [(math.cos(2 * math.pi * k / 16), math.sin(2 * math.pi * k / 16)) for k in range(16)]
+        scale = 1.0 / math.cos(math.pi / 16)  # the polygon circumscribes the circle
+        for b in blocks:
+            if b.kind == "box":
+                c, s_ = math.cos(b.yaw), math.sin(b.yaw)
+                hx, hy = 0.5 * b.size_x, 0.5 * b.size_y
+                outline = [(b.x + c * dx - s_ * dy, b.y + s_ * dx + c * dy)
+                           for dx, dy in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))]
+            else:
+                r = 0.5 * b.size_x * scale
+                outline = [(b.x + r * cx, b.y + r * cy) for cx, cy in ring]
+            z0 = min(self.ground_height(x, y) for x, y in outline) - 0.2
+            z1 = max(self.ground_height(x, y) for x, y in outline) + height
+            key = (int(math.floor(b.x / self.TILE)), int(math.floor(b.y / self.TILE)))
+            verts, idx = tiles.setdefault(key, ([], []))
+            n, base = len(outline), len(verts)
+            verts += [[x, y, z0] for x, y in outline] + [[x, y, z1] for x, y in outline]
+            for k in range(n):  # sides
+                a, b_ = k, (k + 1) % n
+                idx += [base + a, base + b_, base + n + b_, base + a, base + n + b_, base + n + a]
+            for k in range(1, n - 1):  # bottom and top fans
+                idx += [base, base + k + 1, base + k, base + n, base + n + k, base + n + k + 1]
+        return list(tiles.values())
+
+    @staticmethod
+    def _make_mesh(pb, vertices: list, indices: list) -> int:
+        shape = pb.createCollisionShape(pybullet.GEOM_MESH, vertices=vertices, indices=indices)
+        body = pb.createMultiBody(0, shape)
+        pb.changeVisualShape(body, -1, rgbaColor=[0.3, 0.5, 0.25, 1.0])
         return body
 
     def _load_vehicle(self, urdf_text: str) -> int:

@@ -6,8 +6,12 @@ overrides): ``~rate`` (Hz, 50), ``~profile``
 acceleration, acceleration limits), ``~pure_pursuit``
 (:class:`quadrivio_navigation.follower.FollowerParams`).
 
-Subscribes: ``planner/path`` (nav_msgs/Path; a new path restarts the follower),
-``localization/predicted`` (nav_msgs/Odometry).
+Subscribes: ``planner/path`` (nav_msgs/Path; each pose's orientation is the vehicle's
+heading, so a step against it is driven in reverse; a new path replaces the route from
+where the vehicle is, continuing from the current setpoints; an empty path stops the
+vehicle), ``planner/status`` (quadrivio_navigation/PlannerStatus: when planning for a new
+goal fails, the vehicle stops on its current path), ``localization/predicted``
+(nav_msgs/Odometry).
 Publishes: ``vehicle/setpoint/auto`` (quadrivio_plc/Setpoint) and ``follower/status``
 (quadrivio_navigation/FollowerStatus) at ``~rate`` once a path and a pose exist.
 """
@@ -24,12 +28,12 @@ from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
+from quadrivio_description.ros.timer import guarded_timer, publish
 from quadrivio_plc.msg import Setpoint
-from quadrivio_description.ros.timer import guarded_timer
 
-from ..follower import ABORTED, STATUS_NAMES, FollowerConfig, PurePursuit
-from ..msg import FollowerStatus
-from ..paths import make_path
+from ..follower import ABORTED, STATUS_NAMES, FollowerConfig, PurePursuit, make_route
+from ..msg import FollowerStatus, PlannerStatus
+from .conversions import yaw_of
 
 
 class FollowerNode:
@@ -43,19 +47,48 @@ class FollowerNode:
         self.pub_sp = rospy.Publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         self.pub_status = rospy.Publisher("follower/status", FollowerStatus, queue_size=10)
         rospy.Subscriber("planner/path", PathMsg, self._on_path, queue_size=1)
+        rospy.Subscriber("planner/status", PlannerStatus, self._on_planner, queue_size=5)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         guarded_timer(1.0 / self.p.rate, self._tick, "follower cycle")
 
     def _on_path(self, m: PathMsg) -> None:
-        pts = np.array([(ps.pose.position.x, ps.pose.position.y) for ps in m.poses])
+        with self.lock:
+            old = self.pp
+            pose = self.pose
+        if not m.poses:
+            if old is not None:
+                old.stop("an empty path: stopping")
+                rospy.logwarn("empty path received: stopping")
+            return
+        poses = np.array([(ps.pose.position.x, ps.pose.position.y, yaw_of(ps.pose.orientation)) for ps in m.poses])
+        speed = pose.twist.twist.linear.x if pose is not None else 0.0
+        if old is None or old.status != 1 or not math.isfinite(speed):
+            speed = 0.0
+        pp_params = self.p.pure_pursuit
         try:
-            path = make_path(pts, self.p.profile)
+            route = make_route(poses, self.p.profile, pp_params.reverse_speed, v_start=speed)
         except ValueError as exc:
             rospy.logerr("ignored a path of %d poses: %s", len(m.poses), exc)
+            if old is not None:
+                old.stop(f"unusable path: {exc}")
             return
         with self.lock:
-            self.pp = PurePursuit(self.p.pure_pursuit, path, self.vehicle)
-        rospy.loginfo("following a path of %.1f m at up to %.1f m/s", path.length, float(path.v.max()))
+            last_sp = (old.sp_speed, old.sp_handlebar, old.t_last) if old is not None and old.status == 1 else \
+                (0.0, 0.0, None)
+            self.pp = PurePursuit(pp_params, route, self.vehicle, *last_sp)
+            self.pp.set_limits(self.p.profile.accel, self.p.profile.decel)
+            self.last_status = None
+        cusps = len(route.segments) - 1
+        rospy.loginfo("following a path of %.1f m (%d cusp%s) at up to %.1f m/s", route.length, cusps,
+                      "" if cusps == 1 else "s", max(float(s.path.v.max()) for s in route.segments))
+
+    def _on_planner(self, m: PlannerStatus) -> None:
+        if m.state == PlannerStatus.FAILED:
+            with self.lock:
+                pp = self.pp
+            if pp is not None and pp.status == 1:
+                pp.stop(f"planner failed: {m.reason}")
+                rospy.logwarn("planning for the new goal failed: stopping (%s)", m.reason)
 
     def _on_pose(self, m: Odometry) -> None:
         with self.lock:
@@ -66,21 +99,26 @@ class FollowerNode:
             pp, pose = self.pp, self.pose
             if pp is None or pose is None:
                 return
-            q = pose.pose.pose.orientation
-            th = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
             now = rospy.Time.now()
             age = max(0.0, (now - pose.header.stamp).to_sec())
-            c = pp.update(pose.pose.pose.position.x, pose.pose.pose.position.y, th, pose.twist.twist.linear.x, age)
+            p = pose.pose.pose.position
+            values = (p.x, p.y, yaw_of(pose.pose.pose.orientation), pose.twist.twist.linear.x)
+            if not all(map(math.isfinite, values)):
+                c = pp.abort("the predicted pose is not finite")
+            else:
+                c = pp.update(*values, pose_age=age, t=now.to_sec())
         sp = Setpoint()
         sp.header.stamp = now
         sp.speed, sp.handlebar, sp.brake = c.speed, c.handlebar, c.brake
-        self.pub_sp.publish(sp)
+        if not publish(self.pub_sp, sp):
+            return
         st = FollowerStatus()
         st.header.stamp = now
         st.status, st.cross_track, st.progress = c.status, c.cross_track, c.progress
         st.remaining = c.remaining if math.isfinite(c.remaining) else 0.0
         st.reason = c.reason
-        self.pub_status.publish(st)
+        st.segment, st.direction = c.segment, c.direction
+        publish(self.pub_status, st)
         if c.status != self.last_status:
             (rospy.logwarn if c.status == ABORTED else rospy.loginfo)(
                 "follower %s%s", STATUS_NAMES[c.status], f": {c.reason}" if c.reason else "")

@@ -53,6 +53,7 @@ from quadrivio_description.config import ConfigError, from_mapping, load_yaml, p
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, site_params,
                                              split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
+from quadrivio_navigation.maps import resolve_map_file
 from quadrivio_plc.msg import Setpoint
 from quadrivio_plc import protocol as P
 from quadrivio_sim.msg import RawGps
@@ -96,6 +97,11 @@ class SimNode:
         node_raw, sim_raw = split_params(raw, NodeParams)
         self.np: NodeParams = node_params(NodeParams, node_raw)
         self.sim_params: SimParams = with_scenario(node_params(SimParams, sim_raw), "sim")
+        # the scenario's map (the map_server's too) populates the world with its obstacles
+        world_map = with_scenario(self.sim_params.map, "map")
+        world_map = dataclasses.replace(world_map, file=resolve_map_file(world_map.file,
+                                                                         rospy.get_param("/scenario/source", "")))
+        self.sim_params = dataclasses.replace(self.sim_params, map=world_map)
         if rospy.has_param("/run/seed") or rospy.has_param("/scenario/seed"):
             self.sim_params = dataclasses.replace(self.sim_params, seed=run_seed())
         self.vehicle = vehicle_params()

@@ -1,9 +1,13 @@
-"""Terrain for the simulator: flat ground, a DEM image, or a procedural rough surface.
+"""The site's terrain: flat ground, a DEM image, or a procedural rough surface.
 
-A terrain is a regular grid of heights ``z[i, j]`` at ``x = x0 + j * res`` and
-``y = y0 + i * res`` (row ``i`` northwards, column ``j`` eastwards), centred on the
-world origin. PyBullet loads it as a heightfield; :meth:`Heightfield.height` gives the
-bilinear height anywhere (for spawning and for tests).
+Shared by the simulator (a PyBullet heightfield) and the planner (slope cost and slopes
+too steep to drive), so both see the same ground. A terrain is a regular grid of heights
+``z[i, j]`` at ``x = x0 + j * res`` and ``y = y0 + i * res`` (row ``i`` northwards,
+column ``j`` eastwards), centred on the world origin; :meth:`Heightfield.height` gives
+the bilinear height anywhere (spawning, tests), :meth:`Heightfield.heights` for arrays.
+The procedural surface is drawn from the generator it is given: the simulator passes
+``numpy.random.default_rng(seed)`` before any other draw, so
+``build_heightfield(p, default_rng(seed))`` rebuilds the simulated ground elsewhere.
 
 Procedural terrain (seeded)::
 
@@ -74,6 +78,16 @@ class Heightfield:
         tx, ty = fx - j, fy - i
         z = self.z
         return float((1 - ty) * ((1 - tx) * z[i, j] + tx * z[i, j + 1]) + ty * ((1 - tx) * z[i + 1, j] + tx * z[i + 1, j + 1]))
+
+    def heights(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Bilinear heights at arrays of points (:meth:`height` for many points)."""
+        rows, cols = self.z.shape
+        fx = np.clip((np.asarray(x, float) - self.x0) / self.res, 0.0, cols - 1.000001)
+        fy = np.clip((np.asarray(y, float) - self.y0) / self.res, 0.0, rows - 1.000001)
+        j, i = fx.astype(int), fy.astype(int)
+        tx, ty = fx - j, fy - i
+        z = self.z
+        return (1 - ty) * ((1 - tx) * z[i, j] + tx * z[i, j + 1]) + ty * ((1 - tx) * z[i + 1, j] + tx * z[i + 1, j + 1])
 
     def gradient(self, x: float, y: float) -> Tuple[float, float]:
         """Central-difference slope ``(dz/dx, dz/dy)`` at ``(x, y)``."""

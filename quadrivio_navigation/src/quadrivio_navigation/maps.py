@@ -1,0 +1,383 @@
+"""Occupancy maps in the ROS map_server format, read without map_server.
+
+A map is a YAML file next to an image (map_server's format)::
+
+    image: orchard.pgm          # relative to the YAML file, or absolute
+    resolution: 0.2             # [m/pixel]
+    origin: [-50.0, -50.0, 0.0] # [m, m, rad] pose of the lower-left pixel in the map frame
+    occupied_thresh: 0.65       # [1] occupancy probability above which a pixel is occupied
+    free_thresh: 0.196          # [1] below which it is free
+    negate: 0                   # 1: white is occupied, black free
+    mode: trinary               # trinary | scale | raw (optional, default trinary)
+
+Each pixel becomes one cell of an occupancy grid, as map_server computes it. With
+``c`` the mean of the pixel's channels in [0, 255] (``255 - c`` when ``negate``)::
+
+    p = (255 - c) / 255
+    trinary:  100 if p > occupied_thresh, 0 if p < free_thresh, else -1 (unknown)
+    scale:    the same, but in between 1 + 98 (p - free) / (occupied - free); a
+              transparent pixel (alpha 0) in between is unknown
+    raw:      the value c itself (0..100, 255 = unknown)
+
+Channels: a grey image has one; grey+alpha, RGB and RGBA images are averaged over their
+colour channels, and in trinary mode over the alpha channel too (map_server's own
+rule, kept so that a map behaves here as it does under map_server). So an aerial or
+hillshade image with obstacles painted black works with suitable thresholds.
+
+The grid's row 0 is the image's bottom row (``y`` grows with the row), as in
+``nav_msgs/OccupancyGrid``. ROS-free.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+from typing import Any, Dict, Optional, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import ConfigError, param
+
+UNKNOWN = -1
+FREE = 0
+OCCUPIED = 100
+MODES = ("trinary", "scale", "raw")
+MAX_CELLS = 100_000_000  # [1] a map larger than this is refused rather than exhausting memory
+
+
+class MapError(ConfigError):
+    """A map file (YAML or image) is missing, malformed or inconsistent."""
+
+
+@dataclass(frozen=True)
+class MapParams:
+    """The map a node loads (map_server, planner, simulator): ``config/map.yaml`` and a
+    scenario's ``map:`` section."""
+    file: str = param("", doc="map_server YAML; relative: to the scenario file's folder (empty: no map)")
+    frame_id: str = param("map", doc="frame of the published map")
+    occupied: int = param(65, lo=1, hi=100, doc="cells at or above this value are obstacles (simulator)")
+    obstacle_height: float = param(1.5, lo=0.05, hi=100.0, unit="m",
+                                   doc="simulator: height of the obstacles built from occupied cells")
+    tree_size: float = param(1.2, lo=0.0, hi=100.0, unit="m",
+                             doc="simulator: occupied blobs no wider than this become cylinders (trees), "
+                                 "larger ones boxes")
+
+
+@dataclass
+class OccupancyGrid:
+    """Cells of ``resolution`` metres, ``data[row, col]`` in -1 (unknown) or 0..100,
+    row 0 at the bottom; ``origin`` is the pose (x, y, yaw) of cell (0, 0)'s outer
+    corner in the map frame."""
+    data: np.ndarray  # int8, (height, width)
+    resolution: float  # [m]
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0)  # [m, m, rad]
+
+    @property
+    def height(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.data.shape[1])
+
+    @property
+    def size(self) -> Tuple[float, float]:
+        """Width and height [m]."""
+        return self.width * self.resolution, self.height * self.resolution
+
+    def to_grid_frame(self, x: float, y: float, yaw: float = 0.0) -> Tuple[float, float, float]:
+        """A map-frame pose in the grid's own frame (origin at cell (0, 0)'s corner, axes
+        along the rows and columns)."""
+        ox, oy, oyaw = self.origin
+        c, s = math.cos(oyaw), math.sin(oyaw)
+        dx, dy = x - ox, y - oy
+        return c * dx + s * dy, -s * dx + c * dy, yaw - oyaw
+
+    def to_map_frame(self, gx, gy, gyaw=0.0):
+        """The inverse of :meth:`to_grid_frame` (scalars or numpy arrays)."""
+        ox, oy, oyaw = self.origin
+        c, s = math.cos(oyaw), math.sin(oyaw)
+        return ox + c * gx - s * gy, oy + s * gx + c * gy, gyaw + oyaw
+
+    def cell_of(self, x: float, y: float) -> Tuple[int, int]:
+        """(row, col) of the cell holding map-frame point (x, y); may lie outside the grid."""
+        gx, gy, _ = self.to_grid_frame(x, y)
+        return int(math.floor(gy / self.resolution)), int(math.floor(gx / self.resolution))
+
+    def contains(self, x: float, y: float) -> bool:
+        r, c = self.cell_of(x, y)
+        return 0 <= r < self.height and 0 <= c < self.width
+
+    def value_at(self, x: float, y: float) -> Optional[int]:
+        """The cell value at map-frame point (x, y), ``None`` outside the grid."""
+        r, c = self.cell_of(x, y)
+        if 0 <= r < self.height and 0 <= c < self.width:
+            return int(self.data[r, c])
+        return None
+
+    def blocked(self, unknown: str = "occupied", lethal: int = 65) -> np.ndarray:
+        """Boolean mask of the cells a vehicle must not touch: value >= ``lethal``, and
+        unknown cells when ``unknown`` is ``occupied``."""
+        mask = self.data >= lethal
+        if unknown == "occupied":
+            mask |= self.data < 0
+        return mask
+
+
+# --------------------------------------------------------------------------- YAML
+def _number(data: Dict[str, Any], key: str, source: str, default: Any = None) -> float:
+    value = data.get(key, default)
+    if value is None:
+        raise MapError(f"{source}: '{key}' is missing")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise MapError(f"{source}: '{key}' = {value!r} must be a finite number")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class MapMetadata:
+    """The YAML half of a map_server map."""
+    image: str  # absolute path
+    resolution: float  # [m/pixel]
+    origin: Tuple[float, float, float]
+    occupied_thresh: float
+    free_thresh: float
+    negate: bool
+    mode: str
+
+
+MAP_KEYS = ("image", "resolution", "origin", "occupied_thresh", "free_thresh", "negate", "mode")
+
+
+def read_metadata(path: str) -> MapMetadata:
+    """Read and check a map_server YAML file (not its image)."""
+    import yaml
+
+    if not path:
+        raise MapError("no map file given (empty path)")
+    if not os.path.isfile(path):
+        raise MapError(f"map {path}: file not found")
+    try:
+        with open(path, "r", encoding="utf-8") as fh:
+            data = yaml.safe_load(fh)
+    except yaml.YAMLError as exc:
+        raise MapError(f"map {path}: malformed YAML: {exc}") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapError(f"map {path}: cannot read: {exc}") from exc
+    if not isinstance(data, dict):
+        raise MapError(f"map {path}: expected a mapping with keys {', '.join(MAP_KEYS)}, "
+                       f"got {type(data).__name__}")
+    unknown = sorted(set(map(str, data)) - set(MAP_KEYS))
+    if unknown:
+        raise MapError(f"map {path}: unknown key(s) {', '.join(unknown)}; a map_server YAML has "
+                       f"{', '.join(MAP_KEYS)}")
+    image = data.get("image")
+    if not isinstance(image, str) or not image:
+        raise MapError(f"map {path}: 'image' is missing (the PGM or PNG file of the map)")
+    image = image if os.path.isabs(image) else os.path.join(os.path.dirname(os.path.abspath(path)), image)
+    resolution = _number(data, "resolution", f"map {path}")
+    if not resolution > 0.0:
+        raise MapError(f"map {path}: 'resolution' = {resolution} must be > 0 m/pixel")
+    origin = data.get("origin")
+    if (not isinstance(origin, (list, tuple)) or len(origin) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in origin)):
+        raise MapError(f"map {path}: 'origin' = {origin!r} must be [x, y, yaw] (m, m, rad)")
+    occ = _number(data, "occupied_thresh", f"map {path}")
+    free = _number(data, "free_thresh", f"map {path}")
+    if not 0.0 <= free <= occ <= 1.0:
+        raise MapError(f"map {path}: thresholds must satisfy 0 <= free_thresh ({free}) <= occupied_thresh ({occ}) <= 1")
+    negate = data.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise MapError(f"map {path}: 'negate' = {negate!r} must be 0 or 1")
+    mode = data.get("mode", "trinary")
+    if mode not in MODES:
+        raise MapError(f"map {path}: 'mode' = {mode!r} is not one of {', '.join(MODES)}")
+    return MapMetadata(image, resolution, (float(origin[0]), float(origin[1]), float(origin[2])), occ, free,
+                       bool(negate), mode)
+
+
+# -------------------------------------------------------------------------- image
+def read_image(path: str) -> Tuple[np.ndarray, bool]:
+    """Pixels of a map image as float (height, width, channels) in [0, 255], row 0 the
+    image's top, and whether the last channel is alpha."""
+    from PIL import Image, UnidentifiedImageError
+
+    if not os.path.isfile(path):
+        raise MapError(f"map image {path}: file not found")
+    try:
+        with Image.open(path) as img:
+            img.load()
+            if img.width * img.height > MAX_CELLS:
+                raise MapError(f"map image {path}: {img.width} x {img.height} pixels is more than the "
+                               f"{MAX_CELLS} cells a map may have")
+            mode = img.mode
+            if mode == "P":  # palette: expand to the colours it stands for
+                img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+                mode = img.mode
+            if mode in ("1", "L"):
+                a = np.asarray(img.convert("L"), dtype=float)[..., None]
+            elif mode in ("I;16", "I;16B", "I;16L", "I"):  # 16-bit grey: scale to 8 bits
+                raw = np.asarray(img, dtype=float)
+                a = (raw * (255.0 / 65535.0))[..., None]
+            elif mode == "LA":
+                a = np.asarray(img, dtype=float)
+            elif mode in ("RGB", "RGBA"):
+                a = np.asarray(img, dtype=float)
+            else:
+                a = np.asarray(img.convert("RGB"), dtype=float)
+                mode = "RGB"
+    except MapError:
+        raise
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise MapError(f"map image {path}: cannot read: {exc}") from exc
+    if a.ndim != 3 or a.shape[0] < 1 or a.shape[1] < 1:
+        raise MapError(f"map image {path}: empty image")
+    return a, mode in ("LA", "RGBA")
+
+
+def occupancy_from_pixels(pixels: np.ndarray, has_alpha: bool, mode: str, negate: bool, occupied_thresh: float,
+                          free_thresh: float, source: str = "image") -> np.ndarray:
+    """map_server's pixel rule (module docstring): int8 grid, row 0 = the image's bottom."""
+    n = pixels.shape[2]
+    colour = pixels if (mode == "trinary" or not has_alpha) else pixels[..., :n - 1]
+    avg = colour.mean(axis=2)
+    alpha = pixels[..., n - 1] if has_alpha else np.full(avg.shape, 255.0)
+    if negate:
+        avg = 255.0 - avg
+    if mode == "raw":
+        value = np.rint(avg).astype(np.int16)
+        bad = (value > OCCUPIED) & (value != 255)
+        if bad.any():
+            raise MapError(f"{source}: raw mode needs pixel values 0..100 or 255 (unknown); "
+                           f"{int(bad.sum())} pixels are outside, e.g. {int(value[bad][0])}")
+        value[value == 255] = UNKNOWN
+        return np.flipud(value.astype(np.int8))
+    occ = (255.0 - avg) / 255.0
+    out = np.full(avg.shape, UNKNOWN, dtype=np.int16)
+    if mode == "scale":
+        between = (occ >= free_thresh) & (occ <= occupied_thresh) & (alpha >= 1.0)
+        span = max(occupied_thresh - free_thresh, 1e-12)
+        out[between] = (1 + 98 * (occ[between] - free_thresh) / span).astype(np.int16)
+    out[occ > occupied_thresh] = OCCUPIED
+    out[occ < free_thresh] = FREE
+    return np.flipud(out.astype(np.int8))
+
+
+def load_map(path: str) -> OccupancyGrid:
+    """A map_server map (YAML and image) as an :class:`OccupancyGrid`; :class:`MapError`
+    names the file and what is wrong with it."""
+    meta = read_metadata(path)
+    pixels, has_alpha = read_image(meta.image)
+    data = occupancy_from_pixels(pixels, has_alpha, meta.mode, meta.negate, meta.occupied_thresh, meta.free_thresh,
+                                 f"map image {meta.image}")
+    return OccupancyGrid(np.ascontiguousarray(data), meta.resolution, meta.origin)
+
+
+def resolve_map_file(file: str, scenario_file: str = "") -> str:
+    """A map path from a scenario: absolute as given, relative to the scenario's folder."""
+    if not file or os.path.isabs(file):
+        return file
+    base = os.path.dirname(os.path.abspath(scenario_file)) if scenario_file else os.getcwd()
+    return os.path.normpath(os.path.join(base, file))
+
+
+# -------------------------------------------------------------------------- write
+def save_map(grid: OccupancyGrid, yaml_path: str, image_name: Optional[str] = None) -> str:
+    """Write ``grid`` as a trinary map_server map (PGM + YAML); returns the YAML path.
+
+    Both files are written to temporary names and moved into place, so an interrupted
+    write leaves no half-written map."""
+    import yaml
+
+    image_name = image_name or os.path.splitext(os.path.basename(yaml_path))[0] + ".pgm"
+    folder = os.path.dirname(os.path.abspath(yaml_path))
+    os.makedirs(folder, exist_ok=True)
+    pix = np.full(grid.data.shape, 205, dtype=np.uint8)  # map_saver's grey for unknown
+    pix[grid.data == FREE] = 254
+    pix[grid.data >= 65] = 0
+    pix[(grid.data > FREE) & (grid.data < 65)] = 205
+    pix = np.flipud(pix)
+    image_path = os.path.join(folder, image_name)
+    header = f"P5\n{grid.width} {grid.height}\n255\n".encode("ascii")
+    _atomic_write(image_path, header + pix.tobytes())
+    meta = {"image": image_name, "resolution": float(grid.resolution), "origin": [float(v) for v in grid.origin],
+            "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.196, "mode": "trinary"}
+    _atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode("utf-8"))
+    return yaml_path
+
+
+def _atomic_write(path: str, data: bytes) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, path)
+
+
+# ---------------------------------------------------------------- obstacles (sim)
+@dataclass(frozen=True)
+class Block:
+    """A static obstacle made from occupied cells, in the map frame."""
+    kind: str  # "box" or "cylinder"
+    x: float  # [m] centre
+    y: float
+    size_x: float  # [m] box: length along the grid's x; cylinder: diameter
+    size_y: float  # [m] box: width along the grid's y; cylinder: diameter
+    yaw: float  # [rad] the grid's rotation
+
+
+def obstacles_from_grid(grid: OccupancyGrid, occupied: int = 65, tree_size: float = 1.2) -> list:
+    """Static obstacles covering every cell at or above ``occupied``: each 8-connected
+    blob no wider than ``tree_size`` becomes one cylinder (a tree or a post) around it,
+    every other blob a few boxes (runs of cells in a row, merged with identical runs in
+    the rows above), so that a wall or a building is a handful of boxes, not thousands
+    of cells. Boxes cover exactly the blob's cells."""
+    from scipy import ndimage
+
+    occ = grid.data >= occupied
+    labels, n = ndimage.label(occ, structure=np.ones((3, 3), dtype=bool))
+    if n == 0:
+        return []
+    res = grid.resolution
+    yaw = grid.origin[2]
+    out = []
+    for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        rows, cols = sl
+        h, w = rows.stop - rows.start, cols.stop - cols.start
+        mask = labels[sl] == k
+        if max(h, w) * res <= tree_size:
+            rr, cc = np.nonzero(mask)
+            cx = (cols.start + cc.mean() + 0.5) * res
+            cy = (rows.start + rr.mean() + 0.5) * res
+            # radius reaching the farthest cell corner from the centroid
+            d = np.hypot((cols.start + cc + 0.5) * res - cx, (rows.start + rr + 0.5) * res - cy) + 0.5 * res * math.sqrt(2)
+            r = float(d.max())
+            x, y, _ = grid.to_map_frame(cx, cy)
+            out.append(Block("cylinder", float(x), float(y), 2 * r, 2 * r, yaw))
+            continue
+        for r0, r1, c0, c1 in _rectangles(mask):
+            gx = (cols.start + 0.5 * (c0 + c1)) * res
+            gy = (rows.start + 0.5 * (r0 + r1)) * res
+            x, y, _ = grid.to_map_frame(gx, gy)
+            out.append(Block("box", float(x), float(y), (c1 - c0) * res, (r1 - r0) * res, yaw))
+    return out
+
+
+def _rectangles(mask: np.ndarray):
+    """Cover a boolean mask by rectangles ``(r0, r1, c0, c1)`` (half-open): runs of
+    True cells in each row, extended upwards while the next row has the same run."""
+    open_runs = {}  # (c0, c1) -> r0
+    out = []
+    h = mask.shape[0]
+    for r in range(h + 1):
+        runs = set()
+        if r < h:
+            row = np.concatenate([[False], mask[r], [False]])
+            edges = np.flatnonzero(row[1:] != row[:-1])
+            runs = {(int(a), int(b)) for a, b in zip(edges[0::2], edges[1::2])}
+        for run in list(open_runs):
+            if run not in runs:
+                out.append((open_runs.pop(run), r, run[0], run[1]))
+        for run in runs:
+            open_runs.setdefault(run, r)
+    return out

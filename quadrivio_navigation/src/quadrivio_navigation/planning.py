@@ -1,0 +1,219 @@
+"""One interface for the planners: ``plan(start, goal, grid, budget) -> PlanResult``.
+
+The implementation is chosen by ``PlannerParams.planner``: ``lattice`` (ARA* over
+motion primitives, :mod:`.lattice`) or ``ompl`` (OMPL's sampling-based planners in
+Reeds-Shepp or Dubins space, :mod:`.ompl_planner`). Both check the vehicle's footprint
+(``vehicle.yaml``, grown by ``cost.padding``) against the same cost grid and return the
+path in the map frame with the driving direction of every step.
+
+Poses are ``(x, y, yaw)`` in the map frame [m, m, rad]. Before searching, the start and
+the goal are checked: outside the map, in collision (with the cell that is hit) and
+unreachable give a result with ``ok = False`` and a reason naming the problem.
+
+A :class:`Planner` keeps what depends only on the map (cost grid, primitives and their
+swept cells, the heuristic's graph) between plans; :func:`plan` builds one per call.
+ROS-free.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import param
+
+from .curves import wrap_angles
+from .costmap import LETHAL, CostGrid, CostParams, Footprint, max_safe_slope, slope_grid
+from .lattice import LatticeParams, LatticePlanner
+from .maps import OccupancyGrid
+from .mprim import GenerationParams, PrimitiveSet, check_for_vehicle, generate, read_mprim
+
+Pose = Tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class OmplParams:
+    planner: str = param("RRTConnect", doc="OMPL geometric planner (RRTConnect, RRTstar, InformedRRTstar, BITstar, "
+                                          "ABITstar, PRMstar, LazyPRMstar, KPIECE1, BKPIECE1, RRT, SST, FMT)")
+    simplify: float = param(0.2, lo=0.0, hi=60.0, unit="s", doc="time for path simplification (0: none)")
+    range: float = param(0.0, lo=0.0, hi=1000.0, unit="m", doc="planner step (0: OMPL's default)")
+    check_resolution: float = param(0.0, lo=0.0, hi=10.0, unit="m",
+                                    doc="motion checking step (0: half a cell)")
+    stop_at_first: bool = param(False, doc="optimising planners: return the first solution instead of using "
+                                           "the whole budget")
+
+
+@dataclass(frozen=True)
+class PlannerParams:
+    planner: str = param("lattice", choices=("lattice", "ompl"), doc="planning algorithm")
+    budget: float = param(2.0, lo=0.01, hi=600.0, unit="s", doc="planning time budget")
+    reverse: bool = param(True, doc="plan reverse motions (Reeds-Shepp) or forward only (Dubins)")
+    reverse_cost: int = param(3, lo=1, hi=100, doc="reverse motions cost this many times their length "
+                                                   "(SBPL's additionalactioncostmult of reverse primitives)")
+    turning_radius: float = param(0.0, lo=0.0, hi=100.0, unit="m",
+                                  doc="minimum turning radius (0: the vehicle's, L / tan(max wheel angle))")
+    radius_margin: float = param(1.05, lo=1.0, hi=3.0, doc="plan with the turning radius times this (tracking margin)")
+    seed: int = param(1, lo=0, hi=2 ** 31 - 1, doc="seed of the sampling planners")
+    sample_step: float = param(0.1, lo=0.01, hi=5.0, unit="m", doc="spacing of the returned path's poses")
+    cost: CostParams = param(CostParams())
+    lattice: LatticeParams = param(LatticeParams())
+    ompl: OmplParams = param(OmplParams())
+
+
+@dataclass
+class PlanResult:
+    ok: bool
+    reason: str  # why it failed, "" on success
+    planner: str
+    poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (N, 3) map frame
+    directions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))  # +1/-1 from pose i to i+1
+    cost: float = math.inf
+    length: float = math.nan  # [m]
+    time_to_first: float = math.nan  # [s] until the first solution
+    planning_time: float = math.nan  # [s] the whole call
+    expansions: int = 0  # lattice: states expanded; ompl: states in the planner's data
+    solutions: List[Tuple[float, float]] = field(default_factory=list)  # (time, cost) of each improvement
+    expanded: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # map frame, for plots
+    goal_offset: Tuple[float, float] = (0.0, 0.0)  # [m, rad] of the path's end from the goal
+
+    @property
+    def cusps(self) -> int:
+        return int(np.sum(self.directions[1:] != self.directions[:-1])) if len(self.directions) > 1 else 0
+
+
+def path_length(poses: np.ndarray) -> float:
+    return float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1])))) if len(poses) > 1 else 0.0
+
+
+class Planner:
+    """The planners of one map: build once, plan many times."""
+
+    def __init__(self, grid: OccupancyGrid, vehicle, p: PlannerParams, heights: Optional[Callable] = None,
+                 rollover=None) -> None:
+        """``heights(x, y)``: terrain height [m] at map-frame arrays (a DEM), for slope
+        cost and slopes too steep to drive; ``rollover``: the roll-over monitor's
+        ``RolloverParams`` that set that limit."""
+        self.grid, self.vehicle, self.p = grid, vehicle, p
+        self.footprint = Footprint.from_vehicle(vehicle, p.cost.padding)
+        self.turning_radius = (p.turning_radius or vehicle.min_turning_radius) * p.radius_margin
+        slope = slope_grid(grid, heights) if heights is not None else None
+        limit = p.cost.max_slope
+        if not limit and rollover is not None:
+            limit = max_safe_slope(vehicle.static_stability_factor, rollover.warn_ratio, rollover.max_roll,
+                                   rollover.warn_fraction)
+        self.max_slope = limit or math.inf
+        self.cost = CostGrid(grid, p.cost, slope, self.max_slope)
+        self._lattice: Optional[LatticePlanner] = None
+        self._ompl = None
+        self.build_time = 0.0
+
+    # ---------------------------------------------------------------- planners
+    def primitives(self) -> PrimitiveSet:
+        lp = self.p.lattice
+        if lp.mprim_file:
+            ps = read_mprim(lp.mprim_file)
+            check_for_vehicle(ps, self.turning_radius / self.p.radius_margin, self.grid.resolution, lp.mprim_file)
+            return ps
+        return generate(GenerationParams(self.turning_radius, self.grid.resolution, lp.headings, self.p.reverse,
+                                         self.p.reverse_cost, lp.long_step))
+
+    def lattice(self) -> LatticePlanner:
+        if self._lattice is None:
+            t = time.perf_counter()
+            self._lattice = LatticePlanner(self.cost, self.primitives(), self.footprint, self.turning_radius,
+                                           self.p.reverse, self.p.lattice, self.p.cost.cost_weight,
+                                           self.p.reverse_cost)
+            self._lattice._graph_2d()
+            self.build_time += time.perf_counter() - t
+        return self._lattice
+
+    def ompl(self):
+        if self._ompl is None:
+            from .ompl_planner import OmplPlanner
+
+            t = time.perf_counter()
+            self._ompl = OmplPlanner(self.cost, self.footprint, self.turning_radius, self.p.reverse,
+                                     self.p.reverse_cost, self.p.cost.cost_weight)
+            self.build_time += time.perf_counter() - t
+        return self._ompl
+
+    # ------------------------------------------------------------------ checks
+    def check_pose(self, pose: Pose, what: str) -> str:
+        """'' when ``pose`` is a valid start or goal, else what is wrong with it."""
+        x, y, yaw = pose
+        if not all(map(math.isfinite, pose)):
+            return f"{what} ({x}, {y}, {yaw}) is not a finite pose"
+        if not self.grid.contains(x, y):
+            w, h = self.grid.size
+            ox, oy, _ = self.grid.origin
+            return (f"{what} ({x:.2f}, {y:.2f}) is outside the map ({w:.1f} m x {h:.1f} m from "
+                    f"({ox:.2f}, {oy:.2f}))")
+        gx, gy, gth = self.grid.to_grid_frame(x, y, yaw)
+        rows, cols = self.cost.pose_cells(self.footprint, gx, gy, gth)
+        hh, ww = self.cost.shape
+        outside = (rows < 0) | (cols < 0) | (rows >= hh) | (cols >= ww)
+        if outside.any():
+            return f"{what} ({x:.2f}, {y:.2f}, {math.degrees(yaw):.0f} deg): the vehicle would stick out of the map"
+        hit = self.cost.cost[rows, cols] == LETHAL
+        if hit.any():
+            r, c = rows[hit][0], cols[hit][0]
+            cx, cy, _ = self.grid.to_map_frame((c + 0.5) * self.grid.resolution, (r + 0.5) * self.grid.resolution)
+            value = int(self.grid.data[r, c])
+            kind = "unknown" if value < 0 else ("too steep" if value < self.p.cost.lethal else "occupied")
+            return (f"{what} ({x:.2f}, {y:.2f}, {math.degrees(yaw):.0f} deg) is in collision: the footprint covers "
+                    f"{int(hit.sum())} blocked cells, e.g. an {kind} cell at ({cx:.2f}, {cy:.2f})")
+        return ""
+
+    # -------------------------------------------------------------------- plan
+    def plan(self, start: Pose, goal: Pose, budget: Optional[float] = None, planner: Optional[str] = None,
+             cancelled: Callable[[], bool] = lambda: False, seed: Optional[int] = None) -> PlanResult:
+        t0 = time.perf_counter()
+        kind = planner or self.p.planner
+        budget = self.p.budget if budget is None else budget
+        for pose, what in ((start, "start"), (goal, "goal")):
+            problem = self.check_pose(tuple(map(float, pose)), what)
+            if problem:
+                return PlanResult(False, problem, kind, planning_time=time.perf_counter() - t0)
+        gs = self.grid.to_grid_frame(*start)
+        gg = self.grid.to_grid_frame(*goal)
+        if kind == "lattice":
+            r = self.lattice().plan(gs, gg, budget, cancelled)
+            out = PlanResult(r.ok, r.reason, kind, cost=r.cost, time_to_first=r.time_to_first,
+                             expansions=r.expansions, solutions=[(t, c) for t, c, _, _ in r.solutions])
+            poses, dirs, expanded = r.poses, r.directions, r.expanded
+        elif kind == "ompl":
+            r = self.ompl().plan(gs, gg, budget, self.p.ompl, self.p.seed if seed is None else seed,
+                                 self.p.sample_step, cancelled)
+            out = PlanResult(r.ok, r.reason, kind, cost=r.cost, time_to_first=r.time_to_first,
+                             expansions=r.states, solutions=r.solutions)
+            poses, dirs, expanded = r.poses, r.directions, np.zeros((0, 2))
+        else:
+            raise ValueError(f"unknown planner '{kind}' (lattice, ompl)")
+        out.planning_time = time.perf_counter() - t0
+        if not out.ok:
+            return out
+        x, y, th = self.grid.to_map_frame(poses[:, 0], poses[:, 1], poses[:, 2])
+        out.poses = np.column_stack([x, y, wrap_angles(th)])
+        out.directions = np.asarray(dirs, dtype=np.int8)
+        if len(expanded):
+            ex, ey, _ = self.grid.to_map_frame(expanded[:, 0], expanded[:, 1])
+            out.expanded = np.column_stack([ex, ey])
+        out.length = path_length(out.poses)
+        end = out.poses[-1]
+        out.goal_offset = (math.hypot(end[0] - goal[0], end[1] - goal[1]),
+                           abs(math.atan2(math.sin(end[2] - goal[2]), math.cos(end[2] - goal[2]))))
+        return out
+
+    def path_collides(self, poses: np.ndarray) -> List[int]:
+        """Indices of the poses (map frame) whose exact footprint touches a blocked cell."""
+        return [i for i, (x, y, th) in enumerate(poses) if self.cost.collides(self.footprint, x, y, th)]
+
+
+def plan(start: Sequence[float], goal: Sequence[float], grid: OccupancyGrid, budget: float, vehicle,
+         params: PlannerParams = PlannerParams()) -> PlanResult:
+    """Plan once (see :class:`Planner` to plan repeatedly on one map)."""
+    return Planner(grid, vehicle, params).plan(tuple(start), tuple(goal), budget)

@@ -1,0 +1,287 @@
+"""Global planner node: a path from where the vehicle is to a goal on the map.
+
+Parameters (private, ``config/planner.yaml``, :class:`quadrivio_navigation.planning.PlannerParams`;
+a scenario's ``planner:`` section overrides), and:
+
+* ``~map_file`` (str, ""): plan on this map_server map instead of the ``map`` topic;
+* ``~frame_id`` (str, "map"): the planning frame; goals in another frame are refused;
+* ``~terrain_from_scenario`` (bool, true): with a scenario whose ``sim: terrain:`` is a DEM
+  or procedural ground, add its slope cost and treat slopes steeper than the roll-over
+  monitor's warning limit as obstacles.
+
+Subscribes: ``map`` (nav_msgs/OccupancyGrid), ``move_base_simple/goal``
+(geometry_msgs/PoseStamped, rviz's 2D Nav Goal; a new goal replans at once, cancelling a
+plan under way), ``localization/odom`` (nav_msgs/Odometry, the start).
+Publishes: ``planner/path`` (nav_msgs/Path, latched: each pose's orientation is the
+vehicle's heading, so a step pointing against it is driven in reverse), ``planner/status``
+(quadrivio_navigation/PlannerStatus, latched: IDLE with what it waits for, PLANNING,
+FOUND, FAILED with the reason; planning time, time to the first solution, cost, length,
+cusps). A goal outside the map, in collision or unreachable, or a start in collision,
+gives FAILED with the reason, in the log too, and no path.
+Services: ``~plan`` (quadrivio_navigation/PlanPath): plan between two given poses without
+publishing anything.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import numpy as np
+import rospy
+from geometry_msgs.msg import PoseStamped
+from nav_msgs.msg import OccupancyGrid, Odometry
+from nav_msgs.msg import Path as PathMsg
+
+from quadrivio_description.config import ConfigError, param
+from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, split_params,
+                                             vehicle_params, with_scenario)
+from quadrivio_description.ros.timer import publish
+
+from ..maps import MapError, OccupancyGrid as Grid, load_map
+from ..msg import PlannerStatus
+from ..planning import PlannerParams, Planner, PlanResult
+from ..srv import PlanPath, PlanPathResponse
+from .conversions import path_msg, pose_stamped, yaw_of
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    map_file: str = param("", doc="plan on this map_server map instead of the map topic")
+    frame_id: str = param("map", doc="planning frame")
+    terrain_from_scenario: bool = param(True, doc="slope cost from the scenario's simulated terrain")
+
+
+def grid_from_msg(m: OccupancyGrid) -> Grid:
+    info = m.info
+    if info.width == 0 or info.height == 0 or not info.resolution > 0:
+        raise MapError(f"map message of {info.width} x {info.height} cells of {info.resolution} m is empty")
+    if len(m.data) != info.width * info.height:
+        raise MapError(f"map message has {len(m.data)} cells, expected {info.width} x {info.height}")
+    data = np.asarray(m.data, dtype=np.int8).reshape(info.height, info.width)
+    o = info.origin
+    return Grid(data, float(info.resolution), (o.position.x, o.position.y, yaw_of(o.orientation)))
+
+
+class PlannerNode:
+    def __init__(self) -> None:
+        mine, rest = split_params(private_params(), NodeParams)
+        self.np: NodeParams = node_params(NodeParams, mine)
+        self.p: PlannerParams = with_scenario(node_params(PlannerParams, rest), "planner")
+        self.vehicle = vehicle_params()
+        self.heights, self.rollover = self._terrain()
+        self.lock = threading.Lock()  # one plan at a time (worker or service)
+        self.planner: Optional[Planner] = None
+        self.start: Optional[Odometry] = None
+        self.goal: Optional[PoseStamped] = None
+        self.jobs: "queue.Queue[Tuple[str, object]]" = queue.Queue()
+        self.cancel = threading.Event()
+        self.status = PlannerStatus()
+        self.pub_path: Optional[rospy.Publisher] = None  # advertised at the first path (see _publish_path)
+        self.pub_status = rospy.Publisher("planner/status", PlannerStatus, queue_size=5, latch=True)
+        self._set_status(PlannerStatus.IDLE, "waiting for a map" if not self.np.map_file else "loading the map")
+        if self.np.map_file:
+            try:
+                grid = load_map(self.np.map_file)
+            except MapError as exc:
+                fatal(f"cannot load the map: {exc}")
+            self.jobs.put(("map", grid))
+        else:
+            rospy.Subscriber("map", OccupancyGrid, self._on_map, queue_size=1)
+        rospy.Subscriber("move_base_simple/goal", PoseStamped, self._on_goal, queue_size=5)
+        rospy.Subscriber("localization/odom", Odometry, self._on_odom, queue_size=1)
+        rospy.Service("~plan", PlanPath, self._on_plan_service)
+        self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
+        self.worker.start()
+        rospy.loginfo("planner: %s, budget %.1f s, reverse %s, turning radius %.2f m", self.p.planner, self.p.budget,
+                      self.p.reverse, (self.p.turning_radius or self.vehicle.min_turning_radius) * self.p.radius_margin)
+
+    # ------------------------------------------------------------------ inputs
+    def _terrain(self):
+        """Heights of the scenario's simulated terrain (for slope cost), or None."""
+        from ..rollover import RolloverParams
+
+        rollover = RolloverParams()
+        key = "/scenario/sim/terrain"
+        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
+            return None, rollover
+        from quadrivio_description.config import replace_nested
+        from quadrivio_description.terrain import TerrainParams, build_heightfield
+
+        try:
+            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
+            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
+        except ConfigError as exc:
+            fatal(f"bad scenario terrain: {exc}")
+        if hf is None:
+            return None, rollover
+        rospy.loginfo("planner: slope cost from the scenario's %s terrain", tp.kind)
+        return hf.heights, rollover
+
+    def _on_map(self, m: OccupancyGrid) -> None:
+        try:
+            grid = grid_from_msg(m)
+        except MapError as exc:
+            rospy.logerr("ignored a map: %s", exc)
+            return
+        self.jobs.put(("map", grid))
+
+    def _on_odom(self, m: Odometry) -> None:
+        self.start = m
+        if self.status.state == PlannerStatus.IDLE and self.goal is not None and self.planner is not None:
+            self.jobs.put(("goal", self.goal))
+
+    def _on_goal(self, m: PoseStamped) -> None:
+        self.cancel.set()  # a plan under way is for an old goal
+        self.jobs.put(("goal", m))
+
+    # ------------------------------------------------------------------ worker
+    def _work(self) -> None:
+        while not rospy.is_shutdown():
+            try:
+                kind, item = self.jobs.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            try:
+                if kind == "map":
+                    self._build(item)
+                    if self.goal is not None:
+                        self._plan_goal(self.goal)
+                else:
+                    # only the newest goal matters
+                    while True:
+                        try:
+                            k2, i2 = self.jobs.get_nowait()
+                        except queue.Empty:
+                            break
+                        if k2 == "map":
+                            self._build(i2)
+                        else:
+                            item = i2
+                    self.goal = item
+                    self.cancel.clear()
+                    self._plan_goal(item)
+            except Exception as exc:  # noqa: BLE001 - a planning bug must not end the node's planning
+                rospy.logerr("planner: %s failed: %r", kind, exc)
+                self._set_status(PlannerStatus.FAILED, f"internal error: {exc!r}")
+
+    def _build(self, grid: Grid) -> None:
+        t = time.monotonic()
+        self._set_status(PlannerStatus.IDLE, "preparing the map")
+        with self.lock:
+            self.planner = Planner(grid, self.vehicle, self.p, self.heights, self.rollover)
+            if self.p.planner == "lattice":
+                self.planner.lattice()
+            else:
+                self.planner.ompl()
+        rospy.loginfo("planner: map of %d x %d cells of %.2f m ready in %.2f s", grid.width, grid.height,
+                      grid.resolution, time.monotonic() - t)
+        self._set_status(PlannerStatus.IDLE, "waiting for a goal")
+
+    def _goal_pose(self, m: PoseStamped, what: str = "goal") -> Tuple[Optional[Tuple[float, float, float]], str]:
+        frame = m.header.frame_id.lstrip("/")
+        if frame and frame != self.np.frame_id:
+            return None, f"{what} in frame '{m.header.frame_id}', expected '{self.np.frame_id}'"
+        q = m.pose.orientation
+        if not all(map(math.isfinite, (q.x, q.y, q.z, q.w))) or q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-9:
+            return None, f"{what} orientation is not a rotation"
+        pose = (m.pose.position.x, m.pose.position.y, yaw_of(q))
+        if not all(map(math.isfinite, pose)):
+            return None, f"{what} {pose} is not finite"
+        return pose, ""
+
+    def _plan_goal(self, m: PoseStamped) -> None:
+        goal, problem = self._goal_pose(m)
+        if problem:
+            return self._fail(problem, m)
+        if self.planner is None:
+            return self._set_status(PlannerStatus.IDLE, "goal received; waiting for a map", goal=m)
+        if self.start is None:
+            return self._set_status(PlannerStatus.IDLE, "goal received; waiting for the start pose "
+                                                       "(localization/odom)", goal=m)
+        sp = self.start.pose.pose
+        start = (sp.position.x, sp.position.y, yaw_of(sp.orientation))
+        start_msg = pose_stamped(*start, self.np.frame_id, self.start.header.stamp)
+        self._set_status(PlannerStatus.PLANNING, "", start=start_msg, goal=m)
+        with self.lock:
+            r = self.planner.plan(start, goal, cancelled=self.cancel.is_set)
+        if self.cancel.is_set():
+            return  # a newer goal is waiting
+        if not r.ok:
+            return self._fail(r.reason, m, start_msg, r)
+        self._publish_path(path_msg(r.poses, self.np.frame_id, rospy.Time.now()))
+        self._set_status(PlannerStatus.FOUND, "", start_msg, m, r)
+        rospy.loginfo("planner: %s path of %.1f m, %d cusp(s), cost %.1f; first solution in %.0f ms, %.2f s in all",
+                      r.planner, r.length, r.cusps, r.cost, 1e3 * r.time_to_first, r.planning_time)
+
+    def _publish_path(self, msg: PathMsg) -> None:
+        """Advertised only once there is a path: a stack that drives a reference path (the
+        figure eight) keeps a single publisher on planner/path."""
+        if self.pub_path is None:
+            self.pub_path = rospy.Publisher("planner/path", PathMsg, queue_size=1, latch=True)
+            t = time.monotonic()
+            while self.pub_path.get_num_connections() == 0 and time.monotonic() - t < 1.0 and not rospy.is_shutdown():
+                rospy.rostime.wallsleep(0.02)  # let latched subscribers connect before the first message
+        publish(self.pub_path, msg)
+
+    def _fail(self, reason: str, goal: PoseStamped, start: Optional[PoseStamped] = None,
+              r: Optional[PlanResult] = None) -> None:
+        rospy.logerr("planner: no path: %s", reason)
+        self._set_status(PlannerStatus.FAILED, reason, start, goal, r)
+
+    def _set_status(self, state: int, reason: str, start: Optional[PoseStamped] = None,
+                    goal: Optional[PoseStamped] = None, r: Optional[PlanResult] = None) -> None:
+        st = PlannerStatus()
+        st.header.stamp = rospy.Time.now()
+        st.header.frame_id = self.np.frame_id
+        st.state, st.reason = state, reason
+        st.planner = self.p.planner
+        if start is not None:
+            st.start = start
+        if goal is not None:
+            st.goal = goal
+        if r is not None:
+            st.planning_time = r.planning_time
+            st.time_to_first = r.time_to_first if math.isfinite(r.time_to_first) else 0.0
+            st.cost = r.cost if math.isfinite(r.cost) else 0.0
+            st.length = r.length if math.isfinite(r.length) else 0.0
+            st.cusps = r.cusps if r.ok else 0
+            st.expansions = r.expansions
+        self.status = st
+        publish(self.pub_status, st)
+
+    # ----------------------------------------------------------------- service
+    def _on_plan_service(self, req) -> PlanPathResponse:
+        out = PlanPathResponse()
+        if self.planner is None:
+            out.message = "no map yet"
+            return out
+        start, problem = self._goal_pose(req.start, "start")
+        goal, problem2 = self._goal_pose(req.goal)
+        if problem or problem2:
+            out.message = problem or problem2
+            return out
+        if req.planner and req.planner not in ("lattice", "ompl"):
+            out.message = f"unknown planner '{req.planner}' (lattice, ompl)"
+            return out
+        if not (req.budget >= 0 and math.isfinite(req.budget)):
+            out.message = f"budget {req.budget} s is not a duration"
+            return out
+        with self.lock:
+            r = self.planner.plan(start, goal, req.budget or None, req.planner or None)
+        out.success, out.message = r.ok, r.reason
+        if r.ok:
+            out.path = path_msg(r.poses, self.np.frame_id, rospy.Time.now())
+            out.cost, out.length = r.cost, r.length
+            out.time_to_first, out.planning_time = r.time_to_first, r.planning_time
+        return out
+
+
+def main() -> None:
+    rospy.init_node("planner")
+    PlannerNode()
+    rospy.spin()

@@ -1,0 +1,189 @@
+"""Both planners on hand-checkable maps: a corridor, a dead end that needs reversing, an
+unreachable goal, bad requests; collision-free paths; same seed, same path; slopes."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio_description.vehicle import load_vehicle
+from quadrivio_navigation.curves import check_curvature
+from quadrivio_navigation.maps import OccupancyGrid
+from quadrivio_navigation.planning import OmplParams, Planner, PlannerParams, plan
+from quadrivio_navigation.synthetic_maps import Canvas, scattered
+
+VEHICLE = load_vehicle()
+
+
+# The OMPL core is built by `make setup`; without it these tests fail (they do not skip).
+PLANNERS = ["lattice", "ompl"]
+
+
+def params(kind: str, **changes) -> PlannerParams:
+    return dataclasses.replace(PlannerParams(planner=kind, budget=2.0), **changes)
+
+
+def corridor_map() -> OccupancyGrid:
+    """A 40 m x 12 m yard with a 3.2 m wide, 30 m long corridor walled along it."""
+    cv = Canvas(-5.0, -6.0, 40.0, 12.0, 0.2)
+    cv.box(15.0, 1.8, 30.0, 0.4)
+    cv.box(15.0, -1.8, 30.0, 0.4)
+    cv.border(0.4)
+    return cv.grid()
+
+
+def dead_end_map() -> OccupancyGrid:
+    """A blind alley 2.6 m wide and 16 m deep off a 20 m x 26 m yard: too narrow to turn."""
+    cv = Canvas(-22.0, -13.0, 40.0, 26.0, 0.2)
+    cv.box(8.0, 1.5, 16.0, 0.4)
+    cv.box(8.0, -1.5, 16.0, 0.4)
+    cv.box(16.2, 0.0, 0.4, 3.4)  # the end wall
+    cv.box(9.0, 7.5, 18.0, 11.0)  # solid ground around the alley
+    cv.box(9.0, -7.5, 18.0, 11.0)
+    cv.border(0.4)
+    return cv.grid()
+
+
+def collision_free(planner: Planner, poses: np.ndarray) -> bool:
+    return planner.path_collides(poses) == []
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_straight_corridor(kind):
+    grid = corridor_map()
+    planner = Planner(grid, VEHICLE, params(kind))
+    r = planner.plan((-2.0, 0.0, 0.0), (32.0, 0.0, 0.0))
+    assert r.ok, r.reason
+    assert r.length == pytest.approx(34.0, rel=0.02)  # straight through
+    assert r.cusps == 0 and (r.directions > 0).all()
+    assert np.abs(r.poses[:, 1]).max() < 0.5  # stays in the middle
+    assert r.goal_offset[0] < 1e-6 and r.goal_offset[1] < 1e-6  # ends exactly on the goal
+    assert collision_free(planner, r.poses)
+    assert check_curvature(r.poses, VEHICLE.min_turning_radius, tol=0.02) is None
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_dead_end_needs_reversing(kind):
+    grid = dead_end_map()
+    planner = Planner(grid, VEHICLE, params(kind, budget=3.0))
+    r = planner.plan((12.0, 0.0, 0.0), (-10.0, 4.0, math.pi / 2))
+    assert r.ok, r.reason
+    assert r.directions[0] < 0  # the only way out is backwards
+    backwards = np.sum(np.hypot(*np.diff(r.poses[:, :2], axis=0).T)[r.directions[:-1] < 0])
+    assert backwards > 10.0  # at least out of the alley
+    assert collision_free(planner, r.poses)
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_forward_only_cannot_leave_a_dead_end(kind):
+    grid = dead_end_map()
+    planner = Planner(grid, VEHICLE, params(kind, reverse=False, budget=1.0))
+    r = planner.plan((12.0, 0.0, 0.0), (-10.0, 4.0, math.pi / 2))
+    assert not r.ok and r.reason
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_unreachable_goal(kind):
+    cv = Canvas(-10.0, -10.0, 30.0, 20.0, 0.2)
+    cv.box(10.0, 0.0, 8.0, 0.4)  # a walled pen around (10, 0)
+    cv.box(10.0, -6.0, 8.0, 0.4)
+    cv.box(6.0, -3.0, 0.4, 6.4)
+    cv.box(14.0, -3.0, 0.4, 6.4)
+    cv.border(0.4)
+    planner = Planner(cv.grid(), VEHICLE, params(kind, budget=0.5))
+    r = planner.plan((-5.0, 0.0, 0.0), (10.0, -3.0, 0.0))
+    assert not r.ok
+    if kind == "lattice":  # decided before searching
+        assert "unreachable" in r.reason and r.planning_time < 0.5
+
+
+@pytest.mark.parametrize("start, goal, message", [
+    ((-2.0, 0.0, 0.0), (60.0, 0.0, 0.0), "goal (60.00, 0.00) is outside the map"),
+    ((-2.0, 0.0, 0.0), (15.0, 1.8, 0.0), "goal (15.00, 1.80, 0 deg) is in collision"),
+    ((15.0, 1.5, 0.0), (-2.0, 0.0, 0.0), "start (15.00, 1.50, 0 deg) is in collision"),
+    ((-2.0, 0.0, 0.0), (34.6, 0.0, 0.0), "stick out of the map"),
+    ((-2.0, 0.0, 0.0), (math.nan, 0.0, 0.0), "not a finite pose"),
+])
+def test_bad_requests_say_what_is_wrong(start, goal, message):
+    planner = Planner(corridor_map(), VEHICLE, params("lattice"))
+    r = planner.plan(start, goal)
+    assert not r.ok and message in r.reason, r.reason
+    assert len(r.poses) == 0
+
+
+def test_unknown_cells_are_a_parameter():
+    grid = corridor_map()
+    grid.data[:, 100:105] = -1  # an unknown band across the yard at x = 15..16 m
+    blocked = Planner(grid, VEHICLE, params("lattice", budget=0.5)).plan((-2.0, 0.0, 0.0), (32.0, 0.0, 0.0))
+    assert not blocked.ok
+    free = dataclasses.replace(PlannerParams().cost, unknown="free")
+    r = Planner(grid, VEHICLE, params("lattice", cost=free)).plan((-2.0, 0.0, 0.0), (32.0, 0.0, 0.0))
+    assert r.ok
+
+
+def random_pairs(planner: Planner, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        s = (rng.uniform(-45, 45), rng.uniform(-45, 45), rng.uniform(-math.pi, math.pi))
+        g = (rng.uniform(-45, 45), rng.uniform(-45, 45), rng.uniform(-math.pi, math.pi))
+        if math.hypot(s[0] - g[0], s[1] - g[1]) > 30 and not planner.check_pose(s, "s") and \
+                not planner.check_pose(g, "g"):
+            out.append((s, g))
+    return out
+
+
+@pytest.fixture(scope="module")
+def field_planner():
+    grid = scattered(size=100.0, res=0.2, seed=11, rocks=50, buildings=6)
+    return Planner(grid, VEHICLE, params("lattice"))
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_paths_are_collision_free_on_a_cluttered_field(field_planner, kind):
+    for s, g in random_pairs(field_planner, 4, seed=5):
+        r = field_planner.plan(s, g, budget=1.0, planner=kind)
+        assert r.ok, r.reason
+        assert collision_free(field_planner, r.poses)
+        assert r.goal_offset[0] < 0.15 and r.goal_offset[1] < math.radians(12)
+        steps = np.hypot(*np.diff(r.poses[:, :2], axis=0).T)
+        assert steps.max() < 0.5  # a dense path the follower can use
+
+
+def test_same_seed_same_path(field_planner):
+    s, g = random_pairs(field_planner, 1, seed=9)[0]
+    lattice_fixed = dataclasses.replace(PlannerParams().lattice, max_expansions=3000)
+    p = Planner(field_planner.grid, VEHICLE, params("lattice", lattice=lattice_fixed, budget=30.0))
+    a, b = p.plan(s, g), p.plan(s, g)
+    assert a.ok and np.array_equal(a.poses, b.poses) and a.cost == b.cost
+    first = dataclasses.replace(OmplParams(), stop_at_first=True)
+    q = Planner(field_planner.grid, VEHICLE, params("ompl", ompl=first, seed=4))
+    a, b = q.plan(s, g), q.plan(s, g)
+    assert a.ok and np.array_equal(a.poses, b.poses)
+    c = q.plan(s, g, seed=5)
+    assert c.ok and not np.array_equal(a.poses, c.poses)  # another seed, another tree
+
+
+def test_one_call_interface():
+    r = plan((-2.0, 0.0, 0.0), (32.0, 0.0, 0.0), corridor_map(), 1.0, VEHICLE)
+    assert r.ok and r.planner == "lattice" and r.time_to_first <= r.planning_time
+
+
+def test_steep_slopes_are_obstacles_and_slopes_cost():
+    """A ridge across the yard, steeper than the roll-over monitor's limit except in a notch."""
+    from quadrivio_navigation.rollover import RolloverParams
+
+    cv = Canvas(-10.0, -15.0, 40.0, 30.0, 0.5)
+    cv.border(0.5)
+
+    def heights(x, y):
+        ridge = 4.0 * np.exp(-((x - 10.0) / 1.5) ** 2)  # about 1.2 rise over run on its flanks
+        notch = np.clip((np.abs(y - 8.0) - 3.0) / 8.0, 0.0, 1.0)  # level for 3 m either side of y = 8
+        return ridge * notch
+
+    planner = Planner(cv.grid(), VEHICLE, params("lattice", budget=3.0), heights, RolloverParams())
+    assert 0.3 < planner.max_slope < 0.5
+    r = planner.plan((0.0, 0.0, 0.0), (20.0, 0.0, 0.0))
+    assert r.ok, r.reason
+    crossing = r.poses[np.argmin(np.abs(r.poses[:, 0] - 10.0))]
+    assert abs(crossing[1] - 8.0) < 2.5  # through the notch, not over the ridge
