@@ -142,7 +142,7 @@ def test_route_splits_at_cusps():
         make_route(np.array([[0.0, 0.0, 0.0]]), SpeedProfileParams())
 
 
-def run_route(route, params=FollowerParams(), t_max=120.0, start=(0.0, 0.0, 0.0), on_cycle=None):
+def run_route(route, params=FollowerParams(), t_max=120.0, start=(0.0, 0.0, 0.0), on_cycle=None, obstacles=()):
     """Closed loop on the simulator core with the true pose; returns (follower, log)."""
     from quadrivio_plc import protocol as P
     from quadrivio_sim.actuators import load_actuators
@@ -151,7 +151,7 @@ def run_route(route, params=FollowerParams(), t_max=120.0, start=(0.0, 0.0, 0.0)
     from quadrivio_sim.world import Pose2D, quat_to_rpy
 
     v = load_vehicle()
-    sp = SimParams(spawn=Pose2D(*start))
+    sp = SimParams(spawn=Pose2D(*start), obstacles=tuple(obstacles))
     sim = Simulator(sp, v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v))
     pp = PurePursuit(params, route, v)
     pp.set_limits(1.0, 1.0)
@@ -256,3 +256,15 @@ def test_controlled_stop_on_request():
     assert abs(log[-1, 4]) < 0.1
     following = log[log[:, 7] == FOLLOWING, 5]
     assert np.max(np.abs(np.diff(following))) <= 0.02 + 1e-6  # ramped down, not slammed
+
+
+def test_follower_aborts_when_blocked():
+    """A wall the path does not know about: the vehicle stops against it, the follower gives up."""
+    from quadrivio_sim.world import Obstacle
+
+    pts = np.column_stack([np.linspace(0, 30, 301), np.zeros(301)])
+    route = make_route(poses_along(pts, 0.0), SpeedProfileParams(speed=1.0))
+    wall = Obstacle("box", (10.0, 0.0), (0.5, 6.0, 1.5))
+    pp, log = run_route(route, FollowerParams(stall_time=3.0), t_max=60.0, obstacles=[wall])
+    assert pp.status == ABORTED and "no progress" in pp.reason, pp.reason
+    assert log[-1, 1] < 10.0

@@ -18,6 +18,8 @@ import numpy as np
 CONTRACT_KEYS = ("scenario", "seed", "completed", "sim_duration_s", "wall_duration_s", "rtf", "loc_rmse_m",
                  "loc_p95_m", "loc_max_m", "loc_heading_rmse_deg", "pred_rmse_m", "gps_rmse_m", "gps_fix_fraction",
                  "xte_rmse_m", "xte_max_m", "max_lateral_accel_mps2")
+# planned runs (a map and a goal): None in runs without them
+PLANNED_KEYS = ("goal_position_error_m", "goal_heading_error_deg", "collisions", "path_length_m", "plan_time_s")
 
 
 @dataclass
@@ -49,6 +51,11 @@ class RunData:
     setpoint: Series = field(default_factory=Series.empty)  # vehicle/setpoint/auto: t, speed, handlebar
     vehicle: Series = field(default_factory=Series.empty)  # vehicle/state: t, speed, handlebar
     calibration: Series = field(default_factory=Series.empty)  # localization/calibration: t, <name>...
+    goal: Optional[tuple] = None  # (x, y, yaw) the planner was asked for
+    map: object = None  # quadrivio_navigation.maps.OccupancyGrid of /map
+    planner: Series = field(default_factory=Series.empty)  # planner/status: t, state, planning_time, length
+    path_poses: Optional[np.ndarray] = None  # N x 3 planned poses with the vehicle's heading
+    footprint: object = None  # quadrivio_navigation.costmap.Footprint (no padding) for collisions
 
 
 def _interp_pose(gt: Series, t: np.ndarray):
@@ -119,6 +126,48 @@ def following_window(status: Series, default: tuple) -> tuple:
     return t0, t1
 
 
+def collision_events(gt: Series, grid, footprint, lethal: int = 65) -> Optional[int]:
+    """Times the true footprint went from touching no occupied cell to touching one
+    (ground-truth samples against the map's cells at or above ``lethal``)."""
+    if grid is None or footprint is None or len(gt) == 0:
+        return None
+    from quadrivio_navigation.costmap import footprint_cells
+
+    occupied = grid.data >= lethal
+    h, w = occupied.shape
+    events, inside = 0, False
+    for x, y, yaw in zip(gt["x"], gt["y"], gt["yaw"]):
+        gx, gy, gth = grid.to_grid_frame(float(x), float(y), float(yaw))
+        rows, cols = footprint_cells(footprint, gx, gy, gth, grid.resolution)
+        keep = (rows >= 0) & (cols >= 0) & (rows < h) & (cols < w)
+        hit = bool(occupied[rows[keep], cols[keep]].any())
+        if hit and not inside:
+            events += 1
+        inside = hit
+    return events
+
+
+def planned_metrics(run: RunData) -> Dict[str, object]:
+    """The PLANNED_KEYS of a run that planned to a goal; None where not applicable."""
+    m: Dict[str, object] = {k: None for k in PLANNED_KEYS}
+    gt = run.ground_truth
+    if run.goal is not None and len(gt):
+        gx, gy, gyaw = run.goal
+        x, y, yaw = float(gt["x"][-1]), float(gt["y"][-1]), float(gt["yaw"][-1])
+        m["goal_position_error_m"] = math.hypot(x - gx, y - gy)
+        m["goal_heading_error_deg"] = abs(math.degrees(math.atan2(math.sin(yaw - gyaw), math.cos(yaw - gyaw))))
+    if run.map is not None:
+        m["collisions"] = collision_events(gt, run.map, run.footprint)
+    if run.path_poses is not None and len(run.path_poses) > 1 and len(run.planner):
+        p = run.path_poses
+        m["path_length_m"] = float(np.sum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))))
+    if len(run.planner):
+        found = run.planner["state"] == 2
+        if found.any():
+            m["plan_time_s"] = float(run.planner["planning_time"][found][-1])
+    return m
+
+
 def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = None,
             wall_duration: Optional[float] = None) -> Dict[str, object]:
     gt = run.ground_truth
@@ -159,4 +208,5 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
             m["xte_max_m"] = float(np.max(xt[:, 1]))
         lat = np.abs(gt["vx"] * gt["wz"])  # a_y = v omega for the rear axle centre
         m["max_lateral_accel_mps2"] = float(np.max(lat)) if len(lat) else None
+    m.update(planned_metrics(run))
     return m

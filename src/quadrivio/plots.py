@@ -18,11 +18,41 @@ def _plt():
     return plt
 
 
+def _draw_map(ax, grid) -> None:
+    """The map under a plot: occupied cells black, unknown grey (an unrotated map as an image)."""
+    img = np.where(grid.data >= 65, 0.0, np.where(grid.data < 0, 0.8, 1.0))
+    x0, y0, yaw = grid.origin
+    if abs(yaw) < 1e-9:
+        w, h = grid.size
+        ax.imshow(img, origin="lower", extent=(x0, x0 + w, y0, y0 + h), cmap="gray", vmin=0, vmax=1,
+                  interpolation="nearest", zorder=0)
+    else:
+        rr, cc = np.nonzero(grid.data >= 65)
+        px, py, _ = grid.to_map_frame((cc + 0.5) * grid.resolution, (rr + 0.5) * grid.resolution)
+        ax.plot(px, py, "s", color="k", ms=1, zorder=0)
+
+
 def trajectory(run: RunData, path: str, title: str) -> None:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
+    if run.map is not None:
+        _draw_map(ax, run.map)
     if run.path is not None:
-        ax.plot(run.path[:, 0], run.path[:, 1], "k--", lw=1.2, label="reference path")
+        label = "planned path" if run.goal is not None else "reference path"
+        ax.plot(run.path[:, 0], run.path[:, 1], "k--", lw=1.2, label=label)
+    if run.goal is not None:
+        gx, gy, gyaw = run.goal
+        ax.annotate("", xy=(gx + 1.5 * math.cos(gyaw), gy + 1.5 * math.sin(gyaw)), xytext=(gx, gy),
+                    arrowprops=dict(arrowstyle="->", color="tab:purple", lw=2))
+        ax.plot([gx], [gy], "o", color="tab:purple", label="goal")
+        if run.footprint is not None and len(run.ground_truth):
+            from matplotlib.patches import Polygon
+
+            gt = run.ground_truth
+            step = max(1, len(gt) // 40)
+            for i in list(range(0, len(gt), step)) + [len(gt) - 1]:
+                ax.add_patch(Polygon(run.footprint.corners(gt["x"][i], gt["y"][i], gt["yaw"][i]), closed=True,
+                                     fill=False, lw=0.5, ec="tab:green", alpha=0.6))
     if len(run.ground_truth):
         ax.plot(run.ground_truth["x"], run.ground_truth["y"], color="tab:green", lw=0.8, alpha=0.8,
                 label="ground truth")
@@ -32,6 +62,12 @@ def trajectory(run: RunData, path: str, title: str) -> None:
         ok = run.gps["status"] >= 0
         ax.plot(run.gps["e"][ok], run.gps["n"][ok], "x", color="tab:red", ms=4, mew=0.8, label="GPS fixes")
     ax.set_aspect("equal", adjustable="datalim")
+    if run.map is not None and len(run.ground_truth):  # the map is larger than the run: frame the run
+        xs = np.concatenate([run.ground_truth["x"], run.path[:, 0] if run.path is not None else []])
+        ys = np.concatenate([run.ground_truth["y"], run.path[:, 1] if run.path is not None else []])
+        pad = 5.0
+        ax.set_xlim(xs.min() - pad, xs.max() + pad)
+        ax.set_ylim(ys.min() - pad, ys.max() + pad)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_title(title)

@@ -14,8 +14,12 @@ of the bounding boxes). Poses are in the grid frame (metres from cell (0, 0)'s c
 
 Cost grid: ``LETHAL`` (255) for cells the vehicle must not touch (occupied at or above
 ``lethal``, unknown when unknown counts as occupied, slopes beyond ``max_slope``), else
-0..254 from the map's in-between values and the terrain's slope; a motion's cost is its
-length times ``1 + cost_weight * (highest cost it touches) / 254``.
+0..254 from the highest of the map's in-between values, the terrain's slope and the
+inflation around obstacles, ``c = 254 (1 - d / inflation)`` for a cell ``d`` metres from
+the nearest blocked one (as costmap_2d's inflation layer, linear); a motion's cost is its
+length times ``1 + cost_weight * (highest cost it touches) / 254``, so that a path keeps
+its distance from trees and walls where it can, and a small localization error does not
+put the vehicle into them.
 """
 
 from __future__ import annotations
@@ -113,6 +117,8 @@ class CostParams:
     padding: float = param(0.15, lo=0.0, hi=5.0, unit="m", doc="margin added to each side of the footprint")
     cost_weight: float = param(2.0, lo=0.0, hi=100.0,
                                doc="a motion's cost grows by this factor times its highest cell cost (0..1)")
+    inflation: float = param(1.0, lo=0.0, hi=50.0, unit="m",
+                             doc="cells closer than this to an obstacle cost more, the closer the more (0: off)")
     slope_weight: float = param(1.0, lo=0.0, hi=100.0, doc="cell cost per unit of terrain slope (before clipping)")
     max_slope: float = param(0.0, lo=0.0, hi=2.0, unit="1",
                              doc="slopes (rise over run) above this are obstacles; 0: the roll-over monitor's "
@@ -134,10 +140,15 @@ class CostGrid:
         self.max_slope = max_slope
         if slope is not None:
             cost = np.maximum(cost, np.clip(slope * p.slope_weight, 0.0, 1.0))
-        c = np.rint(cost * 254.0).astype(np.uint8)
         blocked = grid.blocked(p.unknown, p.lethal)
         if slope is not None:
             blocked |= slope > max_slope
+        if p.inflation > 0.0 and blocked.any():
+            from scipy import ndimage
+
+            d = ndimage.distance_transform_edt(~blocked) * self.res - 0.5 * self.res  # to the blocked cell's edge
+            cost = np.maximum(cost, np.clip(1.0 - d / p.inflation, 0.0, 1.0))
+        c = np.rint(cost * 254.0).astype(np.uint8)
         c[blocked] = LETHAL
         self.cost = c
         self.blocked = blocked

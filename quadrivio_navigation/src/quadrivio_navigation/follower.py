@@ -22,7 +22,9 @@ segment starts. At the route's end, once stopped, the follower is DONE when it i
 ``goal_tolerance`` and ``heading_tolerance`` of the goal pose, and ABORTED (missed the
 goal, with the errors) otherwise. It aborts at once (full stop) when the cross-track
 error exceeds ``max_cross_track`` or the pose is older than ``max_pose_age``: a stale pose
-must not steer the vehicle. :meth:`PurePursuit.stop` ends a route with a controlled stop.
+must not steer the vehicle; and when, told to move, it has got less than ``stall_distance``
+further along the route in ``stall_time`` (blocked by something the map does not show,
+stuck). :meth:`PurePursuit.stop` ends a route with a controlled stop.
 
 Setpoints change no faster than the vehicle can follow when ``update`` gets the time: the
 speed by the profile's acceleration and deceleration limits, the handlebar by the
@@ -34,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import List, Optional, Sequence
+from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -62,6 +64,10 @@ class FollowerParams:
     cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m", doc="change direction within this of a cusp")
     max_cross_track: float = param(4.0, lo=0.1, hi=100.0, unit="m", doc="abort beyond this cross-track error")
     max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="abort when the pose is older than this")
+    stall_time: float = param(10.0, lo=0.5, hi=600.0, unit="s",
+                              doc="abort when the vehicle, told to move, gets less than stall_distance further "
+                                  "along the path in this long (blocked, stuck)")
+    stall_distance: float = param(0.3, lo=0.01, hi=10.0, unit="m", doc="see stall_time")
     stop_brake: float = param(0.6, lo=0.0, hi=1.0, doc="brake when done or aborted")
     search_window: float = param(6.0, lo=0.5, hi=100.0, unit="m", doc="progress search window along the path")
 
@@ -179,6 +185,7 @@ class PurePursuit:
         self.t_last: Optional[float] = last_time
         self.sp_speed, self.sp_handlebar = last_speed, last_handlebar
         self.accel = self.decel = math.inf
+        self.stall_ref: Optional[Tuple[float, float]] = None  # (time, route progress [m]) of the last progress
 
     @property
     def path(self) -> Path:
@@ -274,8 +281,24 @@ class PurePursuit:
                 v_sp = min(v_sp, self.p.reverse_speed)
         v_sp *= d
         v_sp, h = self._slew(v_sp, h, t)
+        if t is not None:
+            stalled = self._stalled(t, v_sp)
+            if stalled:
+                return self.abort(stalled, xte)
         return Command(v_sp, h, 0.0, FOLLOWING, xte, self._progress(), self._remaining(),
                        self.reason if self.stopping else "", self.k, d)
+
+    def _stalled(self, t: float, v_sp: float) -> str:
+        """A reason to abort when the vehicle, told to move, does not get along the route."""
+        done = self.route.length - self._remaining()
+        if abs(v_sp) < 0.5 * self.p.min_speed or self.stall_ref is None or \
+                abs(done - self.stall_ref[1]) >= self.p.stall_distance:
+            self.stall_ref = (t, done)
+            return ""
+        if t - self.stall_ref[0] > self.p.stall_time:
+            return (f"no progress: {abs(done - self.stall_ref[1]):.2f} m along the path in "
+                    f"{t - self.stall_ref[0]:.0f} s while driving (blocked?)")
+        return ""
 
     def _finish(self, x: float, y: float, theta: float) -> Command:
         gx, gy, gth = self.route.goal

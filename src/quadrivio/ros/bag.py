@@ -8,9 +8,12 @@ from typing import Dict, List
 
 import numpy as np
 
+from quadrivio_description.frames import yaw_from_quaternion
 from quadrivio_description.ros.bag import open_bag
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
+
+from quadrivio_navigation.costmap import Footprint
 
 from ..metrics import RunData, Series
 
@@ -24,6 +27,9 @@ TOPICS = {
     "setpoint": "/vehicle/setpoint/auto",
     "vehicle": "/vehicle/state",
     "calibration": "/localization/calibration",
+    "planner": "/planner/status",
+    "goal": "/move_base_simple/goal",
+    "map": "/map",
 }
 RECORD = sorted(set(TOPICS.values()) | {"/imu/data", "/imu/mag", "/gps/vel", "/safety/rollover", "/tf", "/tf_static",
                                         "/diagnostics", "/rosout_agg", "/clock", "/joint_states", "/scan/front",
@@ -36,7 +42,7 @@ class BagError(ValueError):
 
 
 def _yaw(q) -> float:
-    return math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
 def _series(rows: List[tuple], names: tuple) -> Series:
@@ -55,13 +61,24 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
     frame = site.local_frame()
     rows: Dict[str, List[tuple]] = {k: [] for k in TOPICS}
     path_xy = None
+    path_poses = None
+    goal = None
+    grid = None
     by_topic = {v: k for k, v in TOPICS.items()}
     with bag:
         try:
             for topic, m, _ in bag.read_messages(topics=list(TOPICS.values())):
                 kind = by_topic[topic]
                 if kind == "path":
-                    path_xy = np.array([(p.pose.position.x, p.pose.position.y) for p in m.poses]) if m.poses else None
+                    path_poses = np.array([(p.pose.position.x, p.pose.position.y, _yaw(p.pose.orientation))
+                                           for p in m.poses]) if m.poses else None
+                    path_xy = path_poses[:, :2] if path_poses is not None else None
+                    continue
+                if kind == "goal":
+                    goal = (m.pose.position.x, m.pose.position.y, _yaw(m.pose.orientation))
+                    continue
+                if kind == "map":
+                    grid = _grid(m)
                     continue
                 t = m.header.stamp.to_sec()
                 if kind in ("ground_truth", "estimate", "predicted"):
@@ -80,6 +97,11 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
                     rows[kind].append((t, m.speed, m.handlebar))
                 elif kind == "vehicle":
                     rows[kind].append((t, m.wheel_speed, m.handlebar))
+                elif kind == "planner":
+                    rows[kind].append((t, m.state, m.planning_time, m.length))
+                    if m.state == 2:  # FOUND: the goal it planned for
+                        g = m.goal.pose
+                        goal = (g.position.x, g.position.y, _yaw(g.orientation))
                 elif kind == "calibration":
                     rows[kind].append((t, *(getattr(m, f) for f in CALIBRATION_FIELDS), m.mag_hard_iron[0] * 1e6,
                                        m.mag_hard_iron[1] * 1e6, *m.sigma[:4], m.sigma[4] * 1e6, m.sigma[5] * 1e6))
@@ -99,4 +121,21 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
         setpoint=_series(rows["setpoint"], ("speed", "handlebar")),
         vehicle=_series(rows["vehicle"], ("speed", "handlebar")),
         calibration=_series(rows["calibration"], cal_cols),
+        goal=goal,
+        map=grid,
+        planner=_series(rows["planner"], ("state", "planning_time", "length")),
+        path_poses=path_poses,
+        footprint=Footprint.from_vehicle(vehicle) if grid is not None else None,
     )
+
+
+def _grid(m):
+    """A nav_msgs/OccupancyGrid as quadrivio_navigation's OccupancyGrid (None if malformed)."""
+    from quadrivio_navigation.maps import OccupancyGrid
+
+    info = m.info
+    if info.width * info.height == 0 or len(m.data) != info.width * info.height:
+        return None
+    data = np.asarray(m.data, dtype=np.int8).reshape(info.height, info.width)
+    o = info.origin
+    return OccupancyGrid(data.copy(), float(info.resolution), (o.position.x, o.position.y, _yaw(o.orientation)))

@@ -50,6 +50,7 @@ class Runner:
         self.seed = args.seed if args.seed is not None else self.scenario.seed
         self.procs: List[subprocess.Popen] = []
         self.status = None
+        self.planner = None
         self.last_status_wall = None
 
     def log(self, text: str) -> None:
@@ -92,10 +93,11 @@ class Runner:
         import rospy
         from std_srvs.srv import Trigger
 
-        from quadrivio_navigation.msg import FollowerStatus
+        from quadrivio_navigation.msg import FollowerStatus, PlannerStatus
 
         rospy.init_node("experiment", disable_signals=True)
         rospy.Subscriber("/follower/status", FollowerStatus, self._on_status, queue_size=10)
+        rospy.Subscriber("/planner/status", PlannerStatus, self._on_planner, queue_size=10)
         rospy.wait_for_service("/simulator/unpause", timeout=30)
         self.wall0 = time.monotonic()
         rospy.ServiceProxy("/simulator/unpause", Trigger)()
@@ -134,6 +136,9 @@ class Runner:
     def _on_status(self, m) -> None:
         self.status = m
 
+    def _on_planner(self, m) -> None:
+        self.planner = m
+
     # ------------------------------------------------------------------- loop
     def run(self) -> str:
         import rospy
@@ -154,6 +159,11 @@ class Runner:
             if run.end == "path_done" and st is not None and st.status in (st.DONE, st.ABORTED):
                 outcome = "completed" if st.status == st.DONE else f"aborted: {st.reason}"
                 break
+            pl = self.planner
+            if run.end == "path_done" and pl is not None and pl.state == pl.FAILED and \
+                    (st is None or st.status != st.FOLLOWING):
+                outcome = f"planner failed: {pl.reason}"
+                break
             if now >= run.max_duration:
                 outcome = "completed" if run.end == "duration" else "time limit"
                 break
@@ -164,6 +174,9 @@ class Runner:
                 last_report = wall
                 prog = f"{100 * st.progress:.0f} % of the path, {['waiting', 'following', 'done', 'aborted'][st.status]}" \
                     if st is not None else "no path yet"
+                if st is None and pl is not None:
+                    prog += f" (planner: {['idle', 'planning', 'found', 'failed'][pl.state]}" + \
+                            (f", {pl.reason})" if pl.reason else ")")
                 self.log(f"sim t = {now:6.1f} s, {prog}, real-time factor {now / max(wall, 1e-3):.2f}")
         self.wall_duration = time.monotonic() - self.wall0
         return outcome
