@@ -7,9 +7,10 @@ quadrivio_navigation.synthetic_maps, so that they can be regenerated and reviewe
 import os
 
 from quadrivio_navigation.maps import save_map
-from quadrivio_navigation.synthetic_maps import orchard, scattered
+from quadrivio_navigation.synthetic_maps import orchard, scattered, yard
 
-OUT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "scenarios", "maps")
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
+OUT = os.path.join(ROOT, "scenarios", "maps")
 
 MAPS = {
     # 6 rows of trees 5 m apart, 39 m long, headlands of 10 m and 9 m, at 0.2 m
@@ -17,10 +18,12 @@ MAPS = {
     # 100 m x 100 m, rocks and buildings, the start and goal areas of scenarios/field.yaml kept clear
     "field": lambda: scattered(size=100.0, res=0.2, seed=7, rocks=70, buildings=9,
                                clear=((-38.0, -38.0, 5.0), (35.0, 32.0, 5.0))),
+    # the planner's node test and the end-to-end rostest: a blind alley and a closed pen
+    "../../quadrivio_navigation/test/data/yard": yard,
 }
 
 if __name__ == "__main__":
     os.makedirs(OUT, exist_ok=True)
     for name, make in MAPS.items():
-        path = save_map(make(), os.path.join(OUT, f"{name}.yaml"))
+        path = save_map(make(), os.path.normpath(os.path.join(OUT, f"{name}.yaml")))
         print(f"wrote {os.path.relpath(path)}")

@@ -34,7 +34,10 @@ if [ "$mode" = all ] || [ "$mode" = rostest ]; then
     printf '[%2d/%d] %-45s ' "$i" "${#tests[@]}" "$pkg/$name"
     results="$LOGS/results/${pkg}__${name%.test}"
     rm -rf "$results"
-    if rostest --results-base-dir "$results" "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log"; then
+    # rostest says SUCCESS with "TESTS: 0" when the checker never reported (a required node
+    # died first): that is a failure
+    if rostest --results-base-dir "$results" "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log" &&
+       ! grep -q "TESTS: 0" "$log"; then
       printf 'ok     %4ds\n' "$(( $(date +%s) - start ))"
     else
       printf 'FAILED %4ds  (log: %s)\n' "$(( $(date +%s) - start ))" "${log#$ROOT/}"

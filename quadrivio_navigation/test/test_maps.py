@@ -200,5 +200,5 @@ def test_scenario_maps_are_up_to_date():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     for name, make in mod.MAPS.items():
-        stored = load_map(os.path.join(root, "scenarios", "maps", f"{name}.yaml"))
+        stored = load_map(os.path.normpath(os.path.join(root, "scenarios", "maps", f"{name}.yaml")))
         assert np.array_equal(stored.data, make().data), name

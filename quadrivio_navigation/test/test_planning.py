@@ -10,7 +10,7 @@ from quadrivio_description.vehicle import load_vehicle
 from quadrivio_navigation.curves import check_curvature
 from quadrivio_navigation.maps import OccupancyGrid
 from quadrivio_navigation.planning import OmplParams, Planner, PlannerParams, plan
-from quadrivio_navigation.synthetic_maps import Canvas, scattered
+from quadrivio_navigation.synthetic_maps import Canvas, scattered, yard
 
 VEHICLE = load_vehicle()
 
@@ -33,15 +33,8 @@ def corridor_map() -> OccupancyGrid:
 
 
 def dead_end_map() -> OccupancyGrid:
-    """A blind alley 2.6 m wide and 16 m deep off a 20 m x 26 m yard: too narrow to turn."""
-    cv = Canvas(-22.0, -13.0, 40.0, 26.0, 0.2)
-    cv.box(8.0, 1.5, 16.0, 0.4)
-    cv.box(8.0, -1.5, 16.0, 0.4)
-    cv.box(16.2, 0.0, 0.4, 3.4)  # the end wall
-    cv.box(9.0, 7.5, 18.0, 11.0)  # solid ground around the alley
-    cv.box(9.0, -7.5, 18.0, 11.0)
-    cv.border(0.4)
-    return cv.grid()
+    """A blind alley 2.6 m wide and 16 m deep off a yard: too narrow to turn."""
+    return yard()
 
 
 def collision_free(planner: Planner, poses: np.ndarray) -> bool:
@@ -66,7 +59,7 @@ def test_straight_corridor(kind):
 def test_dead_end_needs_reversing(kind):
     grid = dead_end_map()
     planner = Planner(grid, VEHICLE, params(kind, budget=3.0))
-    r = planner.plan((12.0, 0.0, 0.0), (-10.0, 4.0, math.pi / 2))
+    r = planner.plan((12.0, 0.0, 0.0), (-10.0, -5.0, math.pi / 2))
     assert r.ok, r.reason
     assert r.directions[0] < 0  # the only way out is backwards
     backwards = np.sum(np.hypot(*np.diff(r.poses[:, :2], axis=0).T)[r.directions[:-1] < 0])
@@ -78,7 +71,7 @@ def test_dead_end_needs_reversing(kind):
 def test_forward_only_cannot_leave_a_dead_end(kind):
     grid = dead_end_map()
     planner = Planner(grid, VEHICLE, params(kind, reverse=False, budget=1.0))
-    r = planner.plan((12.0, 0.0, 0.0), (-10.0, 4.0, math.pi / 2))
+    r = planner.plan((12.0, 0.0, 0.0), (-10.0, -5.0, math.pi / 2))
     assert not r.ok and r.reason
 
 

@@ -275,10 +275,11 @@ def load_map(path: str) -> OccupancyGrid:
 
 
 def resolve_map_file(file: str, scenario_file: str = "") -> str:
-    """A map path from a scenario: absolute as given, relative to the scenario's folder."""
+    """A map path from a scenario: absolute as given, relative to the folder the scenario
+    file really is in (symbolic links followed: the workspace links to the sources)."""
     if not file or os.path.isabs(file):
         return file
-    base = os.path.dirname(os.path.abspath(scenario_file)) if scenario_file else os.getcwd()
+    base = os.path.dirname(os.path.realpath(scenario_file)) if scenario_file else os.getcwd()
     return os.path.normpath(os.path.join(base, file))
 
 

@@ -86,3 +86,21 @@ def scattered(size: float = 100.0, res: float = 0.2, seed: int = 0, rocks: int =
         cv.data[(xx - x) ** 2 + (yy - y) ** 2 <= r * r] = FREE
     cv.border(0.4)
     return cv.grid()
+
+
+def yard(res: float = 0.2) -> OccupancyGrid:
+    """A 40 m x 26 m walled yard with a blind alley 2.6 m wide and 16 m deep (too narrow to
+    turn in: leaving it facing its end takes reversing) and a closed pen (a goal inside it
+    is unreachable). The alley runs along y = 0 from x = 0 to 16, the pen is at x = -14..-8,
+    y = 5..11."""
+    cv = Canvas(-22.0, -13.0, 40.0, 26.0, res)
+    cv.box(8.0, 1.5, 16.0, 0.4)
+    cv.box(8.0, -1.5, 16.0, 0.4)
+    cv.box(16.2, 0.0, 0.4, 3.4)  # the alley's end
+    cv.box(9.0, 7.5, 18.0, 11.0)  # solid ground around the alley
+    cv.box(9.0, -7.5, 18.0, 11.0)
+    for x, y, sx, sy in ((-11.0, 5.0, 6.4, 0.4), (-11.0, 11.0, 6.4, 0.4), (-14.0, 8.0, 0.4, 6.4),
+                         (-8.0, 8.0, 0.4, 6.4)):
+        cv.box(x, y, sx, sy)  # the pen
+    cv.border(0.4)
+    return cv.grid()
