@@ -10,8 +10,8 @@
 // quadrivio_navigation.costmap.footprint_cells (about a microsecond a state). Motions are
 // checked every `check_resolution` metres of Reeds-Shepp (Dubins) curve.
 //
-// The objective is the curve's length with reverse parts counted `reverse_cost` times,
-// times 1 + cost_weight * (highest cell cost at the two ends) / 254.
+// The objective is the lattice planner's: the curve's length with reverse parts counted
+// `reverse_cost` times, times 1 + cost_weight * (highest cell cost along the curve) / 254.
 //
 // Determinism: OMPL seeds every RNG it creates from one global seed generator; it is
 // reseeded with the request's seed before each plan (OMPL logs an error when this
@@ -583,13 +583,14 @@ class CurveCostObjective : public ob::OptimizationObjective
 {
 public:
     CurveCostObjective(const ob::SpaceInformationPtr &si, const Map *map, bool reverse, double rho,
-                       double reverseCost, double costWeight)
+                       double reverseCost, double costWeight, double step)
       : ob::OptimizationObjective(si)
       , map_(map)
       , reverse_(reverse)
       , rho_(rho)
       , reverseCost_(reverseCost)
       , costWeight_(costWeight)
+      , step_(step)
     {
         description_ = "curve length (reverse weighted) x cell cost";
         setCostThreshold(ob::Cost(0.0));
@@ -600,13 +601,30 @@ public:
         return identityCost();
     }
 
+    // The lattice's cost model: the curve's length (reverse parts weighted) times
+    // 1 + cost_weight x the highest cell cost the footprint touches along the curve.
     ob::Cost motionCost(const ob::State *a, const ob::State *b) const override
     {
-        double c = si_->distance(a, b);  // the curve's length, reverse parts weighted
+        double c = si_->distance(a, b);
+        if (costWeight_ <= 0.0)
+            return ob::Cost(c);
+        Segments seg = curveSegments(si_->getStateSpace(), reverse_, rho_, a, b);
         auto *sa = a->as<ob::SE2StateSpace::StateType>();
-        auto *sb = b->as<ob::SE2StateSpace::StateType>();
-        double w = std::max(map_->worst(sa->getX(), sa->getY(), sa->getYaw()),
-                            map_->worst(sb->getX(), sb->getY(), sb->getYaw()));
+        double x = sa->getX(), y = sa->getY(), th = sa->getYaw();
+        int w = map_->worst(x, y, th);
+        for (int i = 0; i < seg.n; ++i)
+        {
+            int n = std::max(1, (int)std::ceil(std::fabs(seg.len[i]) / step_));
+            double x0 = x, y0 = y, th0 = th;
+            for (int j = 1; j <= n; ++j)
+            {
+                x = x0;
+                y = y0;
+                th = th0;
+                advance(x, y, th, seg.kind[i], seg.len[i] * j / n, rho_);
+                w = std::max(w, (int)map_->worst(x, y, th));
+            }
+        }
         if (w >= kLethal)
             w = 254;
         return ob::Cost(c * (1.0 + costWeight_ * w / 254.0));
@@ -620,7 +638,7 @@ public:
 private:
     const Map *map_;
     bool reverse_;
-    double rho_, reverseCost_, costWeight_;
+    double rho_, reverseCost_, costWeight_, step_;
 };
 
 ob::PlannerPtr makePlanner(const std::string &name, const ob::SpaceInformationPtr &si, double range)
@@ -831,7 +849,7 @@ int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const cha
     auto pdef = std::make_shared<ob::ProblemDefinition>(si);
     pdef->setStartAndGoalStates(s, g, 1e-3);
     auto obj = std::make_shared<CurveCostObjective>(si, map, reverse != 0, rho, reverse ? reverse_cost : 1.0,
-                                                    cost_weight);
+                                                    cost_weight, std::max(step, 0.5 * map->res));
     if (stop_at_first)
         obj->setCostThreshold(ob::Cost(std::numeric_limits<double>::infinity()));
     pdef->setOptimizationObjective(obj);

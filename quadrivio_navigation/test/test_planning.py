@@ -87,7 +87,7 @@ def test_unreachable_goal(kind):
     r = planner.plan((-5.0, 0.0, 0.0), (10.0, -3.0, 0.0))
     assert not r.ok
     if kind == "lattice":  # decided before searching
-        assert "unreachable" in r.reason and r.planning_time < 0.5
+        assert "unreachable" in r.reason and r.expansions == 0
 
 
 @pytest.mark.parametrize("start, goal, message", [

@@ -64,6 +64,8 @@ class LatticeParams:
                              doc="use the obstacle-free non-holonomic distance as heuristic within this distance")
     max_expansions: int = param(0, lo=0, hi=10 ** 9, doc="stop after this many expansions (0: only the time budget); "
                                                          "a fixed count makes the result independent of the machine")
+    shortcuts: int = param(100, lo=0, hi=100000, doc="tries at replacing runs of primitives by one free, cheaper "
+                                                     "Reeds-Shepp curve after the search (seeded; 0: none)")
 
 
 @dataclass
@@ -426,7 +428,7 @@ class LatticePlanner:
                 lows = [g[s] + hval(s) for s in list(in_open) + list(incons)]
                 bound = min(eps, goal_g() / min(lows)) if lows and min(lows) > 0 else eps
                 best = (goal_g(), bound)
-                best_path = self._extract(parent, shots, start_state, GOAL)
+                best_path = self._extract(parent, shots, g, start_state, GOAL)
                 solutions.append((elapsed, goal_g(), bound, expansions))
             if timed_out or not open_heap and not incons:
                 break
@@ -465,8 +467,17 @@ class LatticePlanner:
             r_ = fail(reason, expansions)
             r_.expanded = expanded
             return r_
-        poses, dirs = best_path
-        return SearchResult(True, "", poses, dirs, best[0], solutions[0][0], solutions, expansions, expanded, best[1])
+        cost = best[0]
+        if not best_path:  # the start is the goal's lattice state
+            cell, k = divmod(start_state, n)
+            row, col = divmod(cell, w)
+            poses, dirs = np.array([[(col + 0.5) * res, (row + 0.5) * res, TWO_PI * k / n]]), np.ones(1, np.int8)
+        else:
+            if self.p.shortcuts:
+                best_path = self._shortcut(best_path, self.p.shortcuts)
+                cost = sum(e[2] for e in best_path)
+            poses, dirs = self._join(best_path)
+        return SearchResult(True, "", poses, dirs, cost, solutions[0][0], solutions, expansions, expanded, best[1])
 
     def _shot_cost(self, start, segs) -> Optional[float]:
         """Cost of an analytic expansion, None when it collides or leaves the map."""
@@ -483,7 +494,8 @@ class LatticePlanner:
             return None
         return curves.path_cost(segs, float(self.reverse_cost)) * (1.0 + self.cost_weight * worst / 254.0)
 
-    def _extract(self, parent, shots, start_state: int, goal: int):
+    def _extract(self, parent, shots, g, start_state: int, goal: int):
+        """The path as edges: (start pose, poses along the edge, directions of its steps, cost)."""
         chain = []
         s = goal
         while s != start_state:
@@ -492,8 +504,7 @@ class LatticePlanner:
             s = p
         chain.reverse()
         n, res, w = self.n, self.res, self.w
-        poses: List[np.ndarray] = []
-        dirs: List[np.ndarray] = []
+        edges = []
         for p, j, s in chain:
             cell, k = divmod(p, n)
             row, col = divmod(cell, w)
@@ -509,19 +520,37 @@ class LatticePlanner:
                 d = d[:-1]
             else:
                 continue  # the lattice goal state itself
-            if poses:
-                pp = pp[1:]
-            else:
-                pass
-            poses.append(pp)
-            dirs.append(np.asarray(d, dtype=np.int8))
-        if not poses:  # start == goal
-            cell, k = divmod(start_state, n)
-            row, col = divmod(cell, w)
-            pp = np.array([[(col + 0.5) * res, (row + 0.5) * res, TWO_PI * k / n]])
-            return pp, np.ones(1, np.int8)
+            edges.append([pp, np.asarray(d, dtype=np.int8), g[s] - g[p]])
+        return edges
+
+    def _shortcut(self, edges, attempts: int):
+        """Replace runs of edges by one Reeds-Shepp curve where that is free and cheaper (in
+        the search's own cost), ``attempts`` random tries from a fixed seed: the lattice's
+        zigzag between its 16 headings straightened, as OMPL's simplifier does."""
+        rng = np.random.default_rng(0)
+        rc = self.reverse_cost
+        for _ in range(attempts):
+            if len(edges) < 3:
+                break
+            i, j = sorted(rng.choice(len(edges) + 1, 2, replace=False).tolist())
+            if j - i < 2:
+                continue
+            a = tuple(edges[i][0][0])
+            b = tuple(edges[j][0][0]) if j < len(edges) else tuple(edges[-1][0][-1])
+            segs = curves.reeds_shepp(a, b, self.r, rc) if self.reverse else curves.dubins(a, b, self.r)
+            c = self._shot_cost(a, segs)
+            old = sum(e[2] for e in edges[i:j])
+            if c is None or c >= old - 1e-9:
+                continue
+            pp, d = curves.sample(a, segs, self.r, 0.5 * self.res)
+            pp[-1] = b
+            edges[i:j] = [[pp, np.asarray(d[:-1], dtype=np.int8), c]]
+        return edges
+
+    def _join(self, edges):
+        poses = [edges[0][0]] + [e[0][1:] for e in edges[1:]]
         allp = np.vstack(poses)
-        alld = np.concatenate(dirs)
+        alld = np.concatenate([e[1] for e in edges])
         alld = np.concatenate([alld, alld[-1:]])
         allp[:, 2] = curves.wrap_angles(allp[:, 2])
         return allp, alld

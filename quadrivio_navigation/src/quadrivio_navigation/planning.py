@@ -40,7 +40,7 @@ class OmplParams:
     planner: str = param("RRTConnect", doc="OMPL geometric planner (RRTConnect, RRTstar, InformedRRTstar, BITstar, "
                                           "ABITstar, PRMstar, LazyPRMstar, KPIECE1, BKPIECE1, RRT, SST, FMT)")
     simplify: float = param(0.2, lo=0.0, hi=60.0, unit="s", doc="time for path simplification (0: none)")
-    range: float = param(0.0, lo=0.0, hi=1000.0, unit="m", doc="planner step (0: OMPL's default)")
+    range: float = param(30.0, lo=0.0, hi=1000.0, unit="m", doc="the planner's longest step (0: OMPL's default)")
     check_resolution: float = param(0.0, lo=0.0, hi=10.0, unit="m",
                                     doc="motion checking step (0: half a cell)")
     stop_at_first: bool = param(False, doc="optimising planners: return the first solution instead of using "
