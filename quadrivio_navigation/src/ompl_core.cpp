@@ -641,69 +641,42 @@ private:
     double rho_, reverseCost_, costWeight_, step_;
 };
 
+template <class P>
+ob::PlannerPtr withRange(const ob::SpaceInformationPtr &si, double range)
+{
+    auto p = std::make_shared<P>(si);
+    if (range > 0)
+        p->setRange(range);
+    return p;
+}
+
 ob::PlannerPtr makePlanner(const std::string &name, const ob::SpaceInformationPtr &si, double range)
 {
-    ob::PlannerPtr p;
     if (name == "RRTConnect")
-    {
-        auto q = std::make_shared<og::RRTConnect>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "RRT")
-    {
-        auto q = std::make_shared<og::RRT>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "RRTstar")
-    {
-        auto q = std::make_shared<og::RRTstar>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "InformedRRTstar")
-    {
-        auto q = std::make_shared<og::InformedRRTstar>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "BITstar")
-        p = std::make_shared<og::BITstar>(si);
-    else if (name == "ABITstar")
-        p = std::make_shared<og::ABITstar>(si);
-    else if (name == "PRMstar")
-        p = std::make_shared<og::PRMstar>(si);
-    else if (name == "LazyPRMstar")
-        p = std::make_shared<og::LazyPRMstar>(si);
-    else if (name == "KPIECE1")
-    {
-        auto q = std::make_shared<og::KPIECE1>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "BKPIECE1")
-    {
-        auto q = std::make_shared<og::BKPIECE1>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "SST")
-    {
-        auto q = std::make_shared<og::SST>(si);
-        if (range > 0)
-            q->setRange(range);
-        p = q;
-    }
-    else if (name == "FMT")
-        p = std::make_shared<og::FMT>(si);
-    return p;
+        return withRange<og::RRTConnect>(si, range);
+    if (name == "RRT")
+        return withRange<og::RRT>(si, range);
+    if (name == "RRTstar")
+        return withRange<og::RRTstar>(si, range);
+    if (name == "InformedRRTstar")
+        return withRange<og::InformedRRTstar>(si, range);
+    if (name == "KPIECE1")
+        return withRange<og::KPIECE1>(si, range);
+    if (name == "BKPIECE1")
+        return withRange<og::BKPIECE1>(si, range);
+    if (name == "SST")
+        return withRange<og::SST>(si, range);
+    if (name == "BITstar")
+        return std::make_shared<og::BITstar>(si);
+    if (name == "ABITstar")
+        return std::make_shared<og::ABITstar>(si);
+    if (name == "PRMstar")
+        return std::make_shared<og::PRMstar>(si);
+    if (name == "LazyPRMstar")
+        return std::make_shared<og::LazyPRMstar>(si);
+    if (name == "FMT")
+        return std::make_shared<og::FMT>(si);
+    return nullptr;
 }
 
 void setMessage(char *msg, int len, const std::string &text)

@@ -124,7 +124,7 @@ def test_bad_files(tmp_path):
     with pytest.raises(MapError, match="malformed YAML"):
         read_metadata(str(tmp_path / "broken.yaml"))
     (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
-    with pytest.raises(MapError, match="expected a mapping"):
+    with pytest.raises(MapError, match="must be a mapping"):
         read_metadata(str(tmp_path / "list.yaml"))
     (tmp_path / "junk.png").write_bytes(b"not an image at all")
     (tmp_path / "junk.yaml").write_text(yaml.safe_dump({"image": "junk.png", "resolution": 1.0, "origin": [0, 0, 0],

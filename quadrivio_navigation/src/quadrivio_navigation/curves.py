@@ -164,32 +164,29 @@ H = 0.5 * PI
 def _candidates(x: float, y: float, phi: float):
     """Every admissible word as (letters, signed lengths) in units of r."""
     out = []
+    # the time-flipped, reflected and both variants of each formula (x, y, phi signs, flip, reflect)
+    variants = ((1, 1, 1, 1, False), (-1, 1, -1, -1, False), (1, -1, -1, 1, True), (-1, -1, 1, -1, True))
 
-    def four(fn, letters, make):
-        # plain, time-flipped, reflected, both
-        for sx, sy, sphi, flip, refl in ((1, 1, 1, 1, False), (-1, 1, -1, -1, False), (1, -1, -1, 1, True),
-                                         (-1, -1, 1, -1, True)):
-            r = fn(sx * x, sy * y, sphi * phi)
+    def family(fn, letters, make, x_, y_):
+        for sx, sy, sphi, flip, refl in variants:
+            r = fn(sx * x_, sy * y_, sphi * phi)
             if r is not None:
                 lens = [flip * v for v in make(*r)]
                 word = "".join(_SWAP[c] for c in letters) if refl else letters
                 out.append((word, lens))
+
+    xb = x * math.cos(phi) + y * math.sin(phi)  # the goal seen from the end, for the backward words
+    yb = x * math.sin(phi) - y * math.cos(phi)
+
+    def four(fn, letters, make):
+        family(fn, letters, make, x, y)
+
+    def four_back(fn, letters, make):
+        family(fn, letters, make, xb, yb)
 
     four(_lsl, "LSL", lambda t, u, v: (t, u, v))
     four(_lsr, "LSR", lambda t, u, v: (t, u, v))
     four(_lrl, "LRL", lambda t, u, v: (t, u, v))
-    xb = x * math.cos(phi) + y * math.sin(phi)
-    yb = x * math.sin(phi) - y * math.cos(phi)
-
-    def four_back(fn, letters, make):
-        for sx, sy, sphi, flip, refl in ((1, 1, 1, 1, False), (-1, 1, -1, -1, False), (1, -1, -1, 1, True),
-                                         (-1, -1, 1, -1, True)):
-            r = fn(sx * xb, sy * yb, sphi * phi)
-            if r is not None:
-                lens = [flip * v for v in make(*r)]
-                word = "".join(_SWAP[c] for c in letters) if refl else letters
-                out.append((word, lens))
-
     four_back(_lrl, "LRL", lambda t, u, v: (v, u, t))
     four(_lrlr_a, "LRLR", lambda t, u, v: (t, u, -u, v))
     four(_lrlr_b, "LRLR", lambda t, u, v: (t, u, u, v))

@@ -37,7 +37,7 @@ from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_description.config import ConfigError, load_yaml, param
 
 UNKNOWN = -1
 FREE = 0
@@ -52,7 +52,7 @@ class MapError(ConfigError):
 
 @dataclass(frozen=True)
 class MapParams:
-    """The map a node loads (map_server, planner, simulator): ``config/map.yaml`` and a
+    """The map a node loads (map_server, simulator): ``config/map_server.yaml`` and a
     scenario's ``map:`` section."""
     file: str = param("", doc="map_server YAML; relative: to the scenario file's folder (empty: no map)")
     frame_id: str = param("map", doc="frame of the published map")
@@ -152,22 +152,12 @@ MAP_KEYS = ("image", "resolution", "origin", "occupied_thresh", "free_thresh", "
 
 def read_metadata(path: str) -> MapMetadata:
     """Read and check a map_server YAML file (not its image)."""
-    import yaml
-
     if not path:
         raise MapError("no map file given (empty path)")
-    if not os.path.isfile(path):
-        raise MapError(f"map {path}: file not found")
     try:
-        with open(path, "r", encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
-    except yaml.YAMLError as exc:
-        raise MapError(f"map {path}: malformed YAML: {exc}") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(f"map {path}: cannot read: {exc}") from exc
-    if not isinstance(data, dict):
-        raise MapError(f"map {path}: expected a mapping with keys {', '.join(MAP_KEYS)}, "
-                       f"got {type(data).__name__}")
+        data = load_yaml(path)
+    except ConfigError as exc:  # file not found, malformed YAML, not a mapping
+        raise MapError(f"map {exc}") from exc
     unknown = sorted(set(map(str, data)) - set(MAP_KEYS))
     if unknown:
         raise MapError(f"map {path}: unknown key(s) {', '.join(unknown)}; a map_server YAML has "
