@@ -196,3 +196,15 @@ def test_four_wheel_drive_modes(vehicle, drive):
         assert spread[:, 0].mean() > 1.0  # the open front differential: the wheels differ in the turn (1.66)
     v_now = sim.world.base_state()[2]
     assert math.hypot(v_now[0], v_now[1]) == pytest.approx(2.0, rel=0.15)  # climbs 20 % while turning
+
+
+def test_the_planner_rebuilds_the_simulated_ground(vehicle):
+    """The planner's slope cost (planner node, terrain_from_scenario) uses the same ground
+    the simulator built: build_heightfield(p, default_rng(seed)) is the world's heightfield."""
+    terrain = {"kind": "procedural", "size": 40.0, "resolution": 0.5, "roughness": 0.1, "slope": [0.05, 0.0]}
+    sim = make_sim(vehicle, terrain=terrain, seed=17)
+    again = build_heightfield(from_mapping(TerrainParams, terrain, "test"), np.random.default_rng(17))
+    assert np.array_equal(sim.world.heightfield.z, again.z)
+    xs, ys = np.array([-3.2, 0.0, 7.7]), np.array([1.1, -4.0, 9.9])
+    assert np.allclose(again.heights(xs, ys), [sim.world.ground_height(x, y) for x, y in zip(xs, ys)])
+    sim.close()
