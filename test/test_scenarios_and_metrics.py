@@ -9,10 +9,64 @@ from quadrivio.scenario import load_scenario, scenarios_dir
 from quadrivio_description.config import ConfigError
 
 
-@pytest.mark.parametrize("name", ["figure_eight", "rough_terrain"])
+@pytest.mark.parametrize("name", ["figure_eight", "rough_terrain", "orchard", "field"])
 def test_shipped_scenarios_load(name):
     s = load_scenario(name)
     assert s.name == name and s.run.end == "path_done"
+
+
+def test_planned_scenarios_check_their_map_and_goal(tmp_path):
+    from quadrivio.scenario import map_file
+
+    assert map_file(load_scenario("orchard")).endswith("scenarios/maps/orchard.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: bad\nmap: {file: nowhere.yaml}\n")
+    with pytest.raises(ConfigError, match="nowhere.yaml: file not found"):
+        load_scenario(str(bad))
+    bad.write_text(f"name: bad\nmap: {{file: {scenarios_dir()}/maps/orchard.yaml}}\n"
+                   "path: {kind: goal, goal: [500.0, 0.0, 0.0]}\n")
+    with pytest.raises(ConfigError, match="outside the map"):
+        load_scenario(str(bad))
+    bad.write_text("name: bad\npath: {kind: goal, goal: [5.0, 0.0, 0.0]}\n")
+    with pytest.raises(ConfigError, match="needs a map"):
+        load_scenario(str(bad))
+
+
+def test_planned_metrics():
+    """Goal errors from the last true pose, collisions as entries into occupied cells, and
+    none of them for a run without a planner."""
+    from quadrivio.metrics import PLANNED_KEYS
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_navigation.maps import OccupancyGrid
+
+    t = np.arange(0.0, 20.0, 0.1)
+    x = t.copy()  # 1 m/s along y = 0
+    gt = Series(t, {"x": x, "y": np.zeros_like(t), "yaw": np.zeros_like(t), "vx": np.ones_like(t),
+                    "wz": np.zeros_like(t)})
+    data = np.zeros((40, 150), np.int8)
+    data[22:24, 50:52] = 100  # a post the vehicle's side brushes past at x = 10 (y from 0.2 to 0.4)
+    data[:, 120:122] = 100  # a wall across at x = 24: never reached
+    grid = OccupancyGrid(data, 0.2, (0.0, -4.2, 0.0))
+    fp = Footprint.from_vehicle(load_vehicle())
+    planner = Series(np.array([0.5, 1.0]), {"state": np.array([1.0, 2.0]), "planning_time": np.array([0.0, 0.42]),
+                                            "length": np.array([0.0, 19.9])})
+    poses = np.column_stack([np.linspace(0, 19.9, 200), np.zeros(200), np.zeros(200)])
+    run = RunData(ground_truth=gt, estimate=gt, predicted=gt, gps=Series.empty(), path=poses[:, :2],
+                  status=Series.empty(), goal=(20.0, 0.3, math.radians(10)), map=grid, planner=planner,
+                  path_poses=poses, footprint=fp)
+    m = compute(run)
+    assert m["goal_position_error_m"] == pytest.approx(math.hypot(20.0 - 19.9, 0.3))
+    assert m["goal_heading_error_deg"] == pytest.approx(10.0)
+    assert m["collisions"] == 1
+    assert m["path_length_m"] == pytest.approx(19.9)
+    assert m["plan_time_s"] == pytest.approx(0.42)
+    reference = RunData(ground_truth=gt, estimate=gt, predicted=gt, gps=Series.empty(), path=poses[:, :2],
+                        status=Series.empty(), planner=Series(np.array([0.5]), {"state": np.array([0.0]),
+                                                                                "planning_time": np.array([0.0]),
+                                                                                "length": np.array([0.0])}),
+                        path_poses=poses)
+    assert all(compute(reference)[k] is None for k in PLANNED_KEYS)
 
 
 def test_bad_scenarios_name_the_problem(tmp_path):

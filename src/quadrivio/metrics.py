@@ -158,13 +158,12 @@ def planned_metrics(run: RunData) -> Dict[str, object]:
         m["goal_heading_error_deg"] = abs(math.degrees(math.atan2(math.sin(yaw - gyaw), math.cos(yaw - gyaw))))
     if run.map is not None:
         m["collisions"] = collision_events(gt, run.map, run.footprint)
-    if run.path_poses is not None and len(run.path_poses) > 1 and len(run.planner):
-        p = run.path_poses
-        m["path_length_m"] = float(np.sum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))))
-    if len(run.planner):
-        found = run.planner["state"] == 2
-        if found.any():
-            m["plan_time_s"] = float(run.planner["planning_time"][found][-1])
+    found = run.planner["state"] == 2 if len(run.planner) else np.zeros(0, bool)
+    if found.any():  # the planner made the path (not a reference path's publisher)
+        m["plan_time_s"] = float(run.planner["planning_time"][found][-1])
+        if run.path_poses is not None and len(run.path_poses) > 1:
+            p = run.path_poses
+            m["path_length_m"] = float(np.sum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))))
     return m
 
 

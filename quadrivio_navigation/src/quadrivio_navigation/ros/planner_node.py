@@ -221,11 +221,8 @@ class PlannerNode:
     def _publish_path(self, msg: PathMsg) -> None:
         """Advertised only once there is a path: a stack that drives a reference path (the
         figure eight) keeps a single publisher on planner/path."""
-        if self.pub_path is None:
+        if self.pub_path is None:  # latched: subscribers that connect later still get the path
             self.pub_path = rospy.Publisher("planner/path", PathMsg, queue_size=1, latch=True)
-            t = time.monotonic()
-            while self.pub_path.get_num_connections() == 0 and time.monotonic() - t < 1.0 and not rospy.is_shutdown():
-                rospy.rostime.wallsleep(0.02)  # let latched subscribers connect before the first message
         publish(self.pub_path, msg)
 
     def _fail(self, reason: str, goal: PoseStamped, start: Optional[PoseStamped] = None,
