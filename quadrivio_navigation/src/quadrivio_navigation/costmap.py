@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterable, Optional, Sequence, Tuple
+from typing import Optional, Tuple
 
 import numpy as np
 
@@ -83,12 +83,6 @@ def footprint_cells(fp: Footprint, x: float, y: float, theta: float, res: float)
     ok = (np.abs(along - 0.5 * (fp.front - fp.rear)) < 0.5 * (fp.front + fp.rear) + half - 1e-9) & \
          (np.abs(across - 0.5 * (fp.left - fp.right)) < 0.5 * (fp.left + fp.right) + half - 1e-9)
     return rows.ravel()[ok], cols.ravel()[ok]
-
-
-def swept_cells(fp: Footprint, poses: Iterable[Sequence[float]], res: float) -> np.ndarray:
-    """Unique (row, col) cells (N x 2) touched by the footprint at any of ``poses``."""
-    parts = [np.column_stack(footprint_cells(fp, p[0], p[1], p[2], res)) for p in poses]
-    return np.unique(np.vstack(parts), axis=0) if parts else np.zeros((0, 2), dtype=int)
 
 
 def densify(poses: np.ndarray, step: float, angle_step: float = 0.05) -> np.ndarray:

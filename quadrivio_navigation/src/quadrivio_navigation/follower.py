@@ -120,9 +120,6 @@ class Route:
         p = self.segments[-1].path
         return float(p.x[-1]), float(p.y[-1]), self.goal_heading
 
-    def xy(self) -> np.ndarray:
-        return np.vstack([seg.path.xy() for seg in self.segments])
-
 
 def directions(poses: np.ndarray) -> np.ndarray:
     """Driving direction (+1/-1) of each step between poses (x, y, vehicle heading): forward

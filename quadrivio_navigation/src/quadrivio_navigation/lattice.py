@@ -159,8 +159,7 @@ class LatticePlanner:
         self.h, self.w = cost.shape
         self.cost_weight = cost_weight
         # padded cost grid: LETHAL around the map so that swept cells never index outside
-        self.prims = [_Prims([q for q in prims.primitives if q.start_heading == k], self.res, fp)
-                      for k in range(self.n)]
+        self.prims = [_Prims(prims.for_heading(k), self.res, fp) for k in range(self.n)]
         self.checker = PoseChecker(fp, self.res)
         extent = max(max(pr.extent for pr in self.prims), self.checker.extent) + 2
         self.pad = extent

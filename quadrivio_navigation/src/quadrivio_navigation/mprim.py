@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -292,14 +292,3 @@ def check_for_vehicle(ps: PrimitiveSet, turning_radius: float, resolution: float
         if k is not None:
             raise MprimError(f"{where}primitive {p.prim_id} of angle {p.start_heading} turns with radius "
                              f"{1.0 / k:.2f} m, tighter than the vehicle's {turning_radius:.2f} m")
-
-
-def group_by_heading(ps: PrimitiveSet) -> Dict[int, List[Primitive]]:
-    out: Dict[int, List[Primitive]] = {k: [] for k in range(ps.headings)}
-    for p in ps.primitives:
-        out[p.start_heading].append(p)
-    return out
-
-
-def to_cells(poses: Sequence[Sequence[float]], res: float) -> np.ndarray:
-    return np.floor(np.asarray(poses, float)[:, :2] / res).astype(int)
