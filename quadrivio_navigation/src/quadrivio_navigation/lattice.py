@@ -253,12 +253,10 @@ class LatticePlanner:
         t0 = time.perf_counter()
         deadline = t0 + budget
         n, res, w = self.n, self.res, self.w
-        empty = SearchResult(False, "", np.zeros((0, 3)), np.zeros(0, np.int8), math.inf, math.nan, [], 0,
-                             np.zeros((0, 2)), math.inf)
 
-        def fail(reason: str, expansions: int = 0) -> SearchResult:
-            empty.reason, empty.expansions = reason, expansions
-            return empty
+        def fail(reason: str, expansions: int = 0, expanded: np.ndarray = np.zeros((0, 2))) -> SearchResult:
+            return SearchResult(False, reason, np.zeros((0, 3)), np.zeros(0, np.int8), math.inf, math.nan, [],
+                                expansions, expanded, math.inf)
 
         sc = (int(math.floor(start[1] / res)), int(math.floor(start[0] / res)))
         gc = (int(math.floor(goal[1] / res)), int(math.floor(goal[0] / res)))
@@ -429,15 +427,9 @@ class LatticePlanner:
                 best = (goal_g(), bound)
                 best_path = self._extract(parent, shots, g, start_state, GOAL)
                 solutions.append((elapsed, goal_g(), bound, expansions))
-            if timed_out or not open_heap and not incons:
-                break
-            if best is not None and best[1] <= 1.0 + 1e-9:
-                break
-            if best is None:
-                if not open_heap:
-                    break
-                continue
-            if eps <= 1.0:
+            # ImprovePath returns with OPEN left only on a solution or a timeout, so without a
+            # solution here the search is exhausted
+            if timed_out or best is None or best[1] <= 1.0 + 1e-9 or eps <= 1.0 or not (open_heap or incons):
                 break
             # ---- next pass: lower eps, re-open INCONS, re-key OPEN
             eps = max(1.0, eps - self.p.epsilon_step)
@@ -463,9 +455,7 @@ class LatticePlanner:
                     reason = "cancelled"
             else:
                 reason = "no drivable path: every lattice motion from the start was searched"
-            r_ = fail(reason, expansions)
-            r_.expanded = expanded
-            return r_
+            return fail(reason, expansions, expanded)
         cost = best[0]
         if not best_path:  # the start is the goal's lattice state
             cell, k = divmod(start_state, n)

@@ -31,7 +31,7 @@ from quadrivio_description.ros.params import node_params, vehicle_params, with_s
 from quadrivio_description.ros.timer import guarded_timer, publish
 from quadrivio_plc.msg import Setpoint
 
-from ..follower import ABORTED, STATUS_NAMES, FollowerConfig, PurePursuit, make_route
+from ..follower import ABORTED, FOLLOWING, STATUS_NAMES, FollowerConfig, PurePursuit, make_route
 from ..msg import FollowerStatus, PlannerStatus
 from .conversions import yaw_of
 
@@ -62,7 +62,7 @@ class FollowerNode:
             return
         poses = np.array([(ps.pose.position.x, ps.pose.position.y, yaw_of(ps.pose.orientation)) for ps in m.poses])
         speed = pose.twist.twist.linear.x if pose is not None else 0.0
-        if old is None or old.status != 1 or not math.isfinite(speed):
+        if old is None or old.status != FOLLOWING or not math.isfinite(speed):
             speed = 0.0
         pp_params = self.p.pure_pursuit
         try:
@@ -73,7 +73,7 @@ class FollowerNode:
                 old.stop(f"unusable path: {exc}")
             return
         with self.lock:
-            last_sp = (old.sp_speed, old.sp_handlebar, old.t_last) if old is not None and old.status == 1 else \
+            last_sp = (old.sp_speed, old.sp_handlebar, old.t_last) if old is not None and old.status == FOLLOWING else \
                 (0.0, 0.0, None)
             self.pp = PurePursuit(pp_params, route, self.vehicle, *last_sp)
             self.pp.set_limits(self.p.profile.accel, self.p.profile.decel)
@@ -86,7 +86,7 @@ class FollowerNode:
         if m.state == PlannerStatus.FAILED:
             with self.lock:
                 pp = self.pp
-            if pp is not None and pp.status == 1:
+            if pp is not None and pp.status == FOLLOWING:
                 pp.stop(f"planner failed: {m.reason}")
                 rospy.logwarn("planning for the new goal failed: stopping (%s)", m.reason)
 
