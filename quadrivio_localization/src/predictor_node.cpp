@@ -2,7 +2,10 @@
 //
 // Parameters (private): ~rate (Hz, 50), ~horizon (s, 0: predict to now; more: beyond
 // now, to cover the control loop's own delay), ~max_age (s, 1.0: stop predicting from an
-// estimate older than this), ~map_frame (map), ~base_frame (base_link).
+// estimate older than this), ~max_future (s, 0.5: inputs stamped further ahead of the
+// clock are dropped, and so is an estimate newer than that: after the clock moved back),
+// ~map_frame (map), ~base_frame (base_link). When ROS time moves back (the simulator's
+// ~reset, a bag loop) the predictor forgets its estimate, readings and calibration.
 // Vehicle geometry: /vehicle/wheelbase, /vehicle/steering/ratio.
 // Subscribes: localization/odom (nav_msgs/Odometry), vehicle/state
 // (quadrivio_plc/VehicleState), localization/calibration (quadrivio_localization/Calibration).
@@ -35,15 +38,19 @@ public:
     pnh_.param("rate", rate_, 50.0);
     pnh_.param("horizon", horizon_, 0.0);
     pnh_.param("max_age", max_age_, 1.0);
+    pnh_.param("max_future", max_future_, 0.5);
     pnh_.param<std::string>("map_frame", map_frame_, "map");
     pnh_.param<std::string>("base_frame", base_frame_, "base_link");
-    if (!(rate_ > 0.0 && rate_ <= 1000.0) || !(horizon_ >= 0.0 && horizon_ <= 2.0) || !(max_age_ > 0.0))
+    if (!(rate_ > 0.0 && rate_ <= 1000.0) || !(horizon_ >= 0.0 && horizon_ <= 2.0) || !(max_age_ > 0.0) ||
+        !(max_future_ >= 0.0 && max_future_ <= 60.0))
     {
-      ROS_FATAL("predictor: bad parameter: ~rate = %g (0, 1000] Hz, ~horizon = %g [0, 2] s, ~max_age = %g > 0 s",
-                rate_, horizon_, max_age_);
+      ROS_FATAL("predictor: bad parameter: ~rate = %g (0, 1000] Hz, ~horizon = %g [0, 2] s, ~max_age = %g > 0 s, "
+                "~max_future = %g [0, 60] s", rate_, horizon_, max_age_, max_future_);
       ros::shutdown();
       return;
     }
+    wheelbase_ = wheelbase;
+    ratio_ = ratio;
     core_.reset(new ql::Predictor(wheelbase, ratio));
     pub_ = nh_.advertise<nav_msgs::Odometry>("localization/predicted", 10);
     sub_odom_ = nh_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
@@ -54,8 +61,21 @@ public:
   }
 
 private:
+  // A stamp further ahead of the clock than ~max_future comes from a broken clock or
+  // from before the clock moved back: never let it become the predictor's "now".
+  bool fromFuture(const ros::Time& stamp, const char* what)
+  {
+    const ros::Time now = ros::Time::now();
+    if (now.isZero() || stamp.toSec() <= now.toSec() + max_future_) return false;
+    ++rejected_;
+    ROS_WARN_THROTTLE(5.0, "predictor: dropped a %s stamped %.3f s ahead of the clock (~max_future %.2f s)", what,
+                      stamp.toSec() - now.toSec(), max_future_);
+    return true;
+  }
+
   void onOdom(const nav_msgs::Odometry::ConstPtr& m)
   {
+    if (fromFuture(m->header.stamp, "localization estimate")) return;
     const auto& q = m->pose.pose.orientation;
     ql::Pose2 p;
     p.x = m->pose.pose.position.x;
@@ -74,6 +94,8 @@ private:
 
   void onState(const quadrivio_plc::VehicleState::ConstPtr& m)
   {
+    if (m->faults & quadrivio_plc::VehicleState::FAULT_LINK) return;  // no session: values unknown
+    if (fromFuture(m->header.stamp, "vehicle state")) return;
     std::lock_guard<std::mutex> lock(mutex_);
     if (!core_->addReading({ m->header.stamp.toSec(), m->wheel_speed, m->handlebar }))
       ROS_WARN_THROTTLE(5.0, "predictor: dropped a vehicle state (out of order or not finite)");
@@ -97,8 +119,21 @@ private:
     nav_msgs::Odometry out;
     {
       std::lock_guard<std::mutex> lock(mutex_);
+      if (now < last_now_)
+      {
+        ROS_WARN("predictor: ROS time moved back from %.3f s to %.3f s: forgetting the estimate and readings",
+                 last_now_.toSec(), now.toSec());
+        core_.reset(new ql::Predictor(wheelbase_, ratio_));
+      }
+      last_now_ = now;
       if (!core_->hasEstimate()) return;
       const double age = now.toSec() - core_->estimateTime();
+      if (age < -max_future_)
+      {
+        ROS_WARN_THROTTLE(5.0, "predictor: the localization's estimate is %.2f s ahead of the clock: not predicting",
+                          -age);
+        return;
+      }
       if (age > max_age_)
       {
         ROS_WARN_THROTTLE(5.0, "predictor: the localization's estimate is %.2f s old (> ~max_age %.2f s): not predicting",
@@ -132,7 +167,10 @@ private:
   ros::Timer timer_;
   std::unique_ptr<ql::Predictor> core_;
   std::mutex mutex_;
-  double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, z_ = 0.0;
+  double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, max_future_ = 0.5, z_ = 0.0;
+  double wheelbase_ = 1.0, ratio_ = 1.0;
+  ros::Time last_now_;
+  unsigned long rejected_ = 0;
   boost::array<double, 36> covariance_{};
   std::string map_frame_, base_frame_;
 };

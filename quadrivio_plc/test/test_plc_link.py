@@ -8,20 +8,25 @@ import pytest
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_plc import protocol as P
 from quadrivio_plc.client import Multiplexer, PlcLink
+from quadrivio_plc.rawclient import RawClient
 from quadrivio_sim.actuators import LowLevelControl, load_actuators
 from quadrivio_sim.paths import package_file
 from quadrivio_sim.plc_emulator import PlcLogic, PlcParams, PlcServer
 
 
+KEY = b"test-key-0123456789abcdef"
+
+
 class Harness:
     """An emulated PLC polled in a thread, its sim clock advanced by hand."""
 
-    def __init__(self):
+    def __init__(self, port=0, **params):
         ctl = LowLevelControl(load_actuators(package_file("config", "actuators.yaml")), load_vehicle(), 0.01)
-        self.logic = PlcLogic(PlcParams(), ctl)
+        self.logic = PlcLogic(PlcParams(**params), ctl)
         self.t = 0.0
         self.log = []
-        self.server = PlcServer(self.logic, "127.0.0.1", 0, lambda: self.t, lambda lvl, txt: self.log.append(txt))
+        self.server = PlcServer(self.logic, "127.0.0.1", port, lambda: self.t, lambda lvl, txt: self.log.append(txt),
+                                key=KEY)
         self.port = self.server.address[1]
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -30,6 +35,7 @@ class Harness:
     def _run(self):
         while not self.stop.is_set():
             self.server.poll(0.01)
+            self.logic.cycle(self.t, 0.0, 0.0)
 
     def close(self):
         self.stop.set()
@@ -52,6 +58,7 @@ def wait(cond, timeout=5.0):
 
 
 def make_link(port, **kw):
+    kw.setdefault("key", KEY)
     link = PlcLink("127.0.0.1", port, reconnect_min=0.05, reconnect_max=0.2, **kw)
     stop = threading.Event()
 
@@ -92,37 +99,44 @@ def test_second_client_refused_with_reason(plc):
     link, stop, th = make_link(plc.port)
     try:
         wait(lambda: link.connected)
-        with socket.create_connection(("127.0.0.1", plc.port), timeout=2) as s2:
-            s2.settimeout(2.0)
-            data = b""
-            while True:
-                chunk = s2.recv(4096)
-                if not chunk:
-                    break
-                data += chunk
-        [(_, msg)] = P.FrameDecoder().feed(data)
-        assert isinstance(msg, P.Refused) and msg.reason == P.BUSY
-        assert "another client" in msg.text
-        assert link.connected and plc.server.refused == 1
+        link.send(P.Heartbeat())
+        with RawClient("127.0.0.1", plc.port) as s2:  # the right key, but a session is active
+            answer = s2.authenticate(KEY)
+            assert isinstance(answer, P.Refused) and answer.reason == P.BUSY
+            assert "session" in answer.text
+        with RawClient("127.0.0.1", plc.port) as s3:  # a stranger
+            answer = s3.authenticate(b"guessed-key-000000000")
+            assert isinstance(answer, P.Refused) and answer.reason == P.NOT_AUTHENTICATED
+        assert link.connected and plc.server.stats.refused == 2 and plc.server.stats.auth_failures == 1
     finally:
         stop.set()
         th.join()
         link.close()
 
 
+def test_frames_before_authentication_are_refused_and_never_acted_on(plc):
+    with RawClient("127.0.0.1", plc.port) as s:
+        assert s.wait_for(P.Hello) is not None
+        s.send(P.ModeRequest(P.MODE_AUTO))
+        answer = s.wait_for(P.Refused)
+        assert answer is not None and answer.reason == P.NOT_AUTHENTICATED
+    with RawClient("127.0.0.1", plc.port) as s:  # garbage instead of AUTH: closed
+        s.send_raw(bytes(range(256)) * 4)
+        assert s.wait_for(P.Refused) is not None
+    assert plc.logic.mode == P.MODE_SAFE and plc.server.session is None
+
+
 def test_garbage_is_counted_and_the_plc_keeps_working(plc):
-    with socket.create_connection(("127.0.0.1", plc.port), timeout=2) as s:
-        s.sendall(b"\x00\xffQV\x01garbage" + P.encode(P.ModeRequest(P.MODE_AUTO), 0)[:-1] + b"\x00")
-        s.sendall(b"QV" + bytes(200))
-        s.sendall(P.encode(P.ModeRequest(P.MODE_AUTO), 1))
-        s.settimeout(2.0)
-        dec = P.FrameDecoder()
-        got = []
-        while not got:
-            got = dec.feed(s.recv(4096))
-        assert isinstance(got[0][1], P.Ack) and got[0][1].ack_seq == 1 and got[0][1].status == P.OK
-    wait(lambda: plc.server.decoder.stats.bad_frames >= 2)
-    assert plc.logic.mode == P.MODE_AUTO
+    with RawClient("127.0.0.1", plc.port) as s:
+        assert isinstance(s.authenticate(KEY), P.Ack)
+        s.send_raw(b"\x00\xffQV\x02garbage" + P.encode(P.ModeRequest(P.MODE_AUTO), 100)[:-1] + b"\x00")
+        s.send_raw(b"QV" + bytes(200))
+        s.seq = 101
+        ack = s.request(P.ModeRequest(P.MODE_AUTO))
+        assert ack is not None and ack.status == P.OK
+    wait(lambda: sum(plc.server.stats.bad_frames.values()) >= 2)
+    wait(lambda: plc.logic.mode == P.MODE_SAFE)  # the session ended with the connection: braked
+    assert plc.logic.faults & P.FAULT_LINK
     assert any("rejected" in line for line in plc.log)
 
 
@@ -134,19 +148,11 @@ def test_reconnects_after_plc_restart():
         wait(lambda: link.connected)
         h.close()
         wait(lambda: not link.connected)
-        h2_logic = Harness.__new__(Harness)
         # A new PLC on the same port: the link comes back by itself.
-        ctl = LowLevelControl(load_actuators(package_file("config", "actuators.yaml")), load_vehicle(), 0.01)
-        h2_logic.logic = PlcLogic(PlcParams(), ctl)
-        h2_logic.t = 0.0
-        h2_logic.log = []
-        h2_logic.server = PlcServer(h2_logic.logic, "127.0.0.1", port, lambda: 0.0, lambda *a: None)
-        h2_logic.stop = threading.Event()
-        h2_logic.thread = threading.Thread(target=h2_logic._run, daemon=True)
-        h2_logic.thread.start()
+        h2 = Harness(port)
         wait(lambda: link.connected, timeout=5.0)
         assert link.stats.connects == 2 and link.stats.disconnects == 1
-        h2_logic.close()
+        h2.close()
     finally:
         stop.set()
         th.join()
@@ -158,7 +164,7 @@ def test_connect_failure_backs_off():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # nobody listens here
     t = [0.0]
-    link = PlcLink("127.0.0.1", port, reconnect_min=0.1, reconnect_max=0.4, clock=lambda: t[0])
+    link = PlcLink("127.0.0.1", port, reconnect_min=0.1, reconnect_max=0.4, clock=lambda: t[0], key=KEY)
     delays = []
     for _ in range(5):
         link.poll(0.0)
@@ -166,6 +172,30 @@ def test_connect_failure_backs_off():
         t[0] = link.next_attempt
     assert delays == pytest.approx([0.1, 0.2, 0.4, 0.4, 0.4])
     assert "cannot connect" in link.last_error
+
+
+def test_backoff_grows_until_a_session_is_established(plc):
+    """A PLC that accepts TCP but refuses the key must not be retried every 100 ms."""
+    link = PlcLink("127.0.0.1", plc.port, reconnect_min=0.05, reconnect_max=0.4, key=b"not-the-plc-key-at-all")
+    delays = []
+    deadline = time.monotonic() + 10.0
+    try:
+        while len(delays) < 4 and time.monotonic() < deadline:
+            before = link.next_attempt
+            link.poll(0.02)
+            if link.next_attempt != before:
+                delays.append(link.backoff)
+        assert delays == pytest.approx([0.1, 0.2, 0.4, 0.4])
+        assert not link.connected and "refused" in link.last_error and "authentication failed" in link.last_error
+    finally:
+        link.close()
+    assert plc.server.stats.auth_failures >= 4
+
+
+def test_missing_key_file_is_named(tmp_path):
+    link = PlcLink("127.0.0.1", 1, key_file=str(tmp_path / "nope.key"))
+    link.poll(0.0)
+    assert "nope.key does not exist" in link.last_error and not link.connected
 
 
 def test_multiplexer_by_mode_and_staleness():
@@ -181,3 +211,74 @@ def test_multiplexer_by_mode_and_staleness():
     assert mux.frames(P.MODE_AUTO, 10.5) == [P.Setpoint(P.SOURCE_AUTO, 0.0, 0.1, 0.5)]
     assert mux.stale[P.SOURCE_AUTO]
     assert mux.accepts(P.MODE_AUTO, P.SOURCE_AUTO) and not mux.accepts(P.MODE_AUTO, P.SOURCE_MANUAL)
+
+
+def _driving_session(plc):
+    c = RawClient("127.0.0.1", plc.port)
+    assert isinstance(c.authenticate(KEY), P.Ack)
+    assert c.request(P.ModeRequest(P.MODE_AUTO)).status == P.OK
+    assert c.request(P.Setpoint(P.SOURCE_AUTO, 1.0, 0.0, 0.0)).status == P.OK
+    return c
+
+
+def test_a_cut_link_brakes_and_no_stranger_takes_over(plc):
+    c = _driving_session(plc)
+    c.close()
+    wait(lambda: plc.logic.mode == P.MODE_SAFE)
+    assert plc.logic.faults & P.FAULT_LINK and plc.logic.sp_speed == 0.0
+    with RawClient("127.0.0.1", plc.port) as stranger:
+        answer = stranger.authenticate(b"a-stranger-guessing-keys")
+        assert isinstance(answer, P.Refused) and answer.reason == P.NOT_AUTHENTICATED
+    with RawClient("127.0.0.1", plc.port) as stranger:  # no AUTH at all: setpoints straight away
+        assert stranger.wait_for(P.Hello) is not None
+        stranger.send(P.ModeRequest(P.MODE_AUTO))
+        stranger.send(P.Setpoint(P.SOURCE_AUTO, 3.0, 0.0, 0.0))
+        assert stranger.wait_for(P.Refused) is not None
+    assert plc.logic.mode == P.MODE_SAFE and plc.logic.sp_speed == 0.0
+    with RawClient("127.0.0.1", plc.port) as owner:  # the key holder starts again from SAFE
+        ack = owner.authenticate(KEY)
+        assert isinstance(ack, P.Ack) and ack.mode == P.MODE_SAFE
+
+
+def test_replayed_frames_are_not_acted_on(plc):
+    with _driving_session(plc) as c:
+        seq = c.seq
+        assert c.request(P.Setpoint(P.SOURCE_AUTO, 1.5, 0.0, 0.0)).status == P.OK
+        ack = c.request(P.Setpoint(P.SOURCE_AUTO, 3.0, 0.0, 0.0), seq=seq)  # the same seq again
+        assert ack.status == P.STALE
+        ack = c.request(P.Setpoint(P.SOURCE_AUTO, 3.0, 0.0, 0.0), seq=(seq - 5) & 0xFFFF)  # an older one
+        assert ack.status == P.STALE
+        assert plc.logic.sp_speed == pytest.approx(1.5) and plc.server.stats.stale_frames == 2
+
+
+def test_a_frozen_client_is_braked_then_replaced(plc):
+    c = _driving_session(plc)  # connected, then silent (its TCP connection stays open)
+    try:
+        plc.t = 0.25
+        wait(lambda: plc.logic.mode == P.MODE_SAFE)
+        assert plc.logic.faults & P.FAULT_WATCHDOG and plc.server.connected
+        with RawClient("127.0.0.1", plc.port) as fresh:  # silent for more than the watchdog: replaced
+            ack = fresh.authenticate(KEY)
+            assert isinstance(ack, P.Ack) and ack.mode == P.MODE_SAFE
+            assert plc.server.peer.endswith(str(fresh.sock.getsockname()[1]))
+            assert c.wait_for(P.Refused, timeout=0.2) is None and plc.server.stats.disconnects == 1
+    finally:
+        c.close()
+
+
+def test_a_silent_session_ends_after_the_session_timeout(plc):
+    with _driving_session(plc):
+        plc.t = plc.logic.p.session_timeout + 0.05
+        wait(lambda: not plc.server.connected)
+        assert plc.logic.mode == P.MODE_SAFE
+
+
+def test_a_flood_of_bad_frames_is_logged_once_a_second(plc):
+    bad = bytearray(P.encode(P.Heartbeat(), 1))
+    bad[2] = 7
+    with _driving_session(plc) as c:
+        for _ in range(16):
+            c.send_raw(bytes(bad) * 400)
+        c.request(P.Heartbeat())
+        wait(lambda: plc.server.stats.bad_frames.get("bad version", 0) == 6400)
+    assert sum("rejected" in line for line in plc.log) <= 2

@@ -16,6 +16,8 @@ MESSAGES = [
     P.State(12.34, P.MODE_AUTO, P.FAULT_WATCHDOG, 77, 2.0, 0.1, 0.3, 0.0, 2.5, 0.12),
     P.Ack(65535, P.Setpoint.TYPE, P.CLAMPED, P.MODE_SAFE),
     P.Refused(P.BUSY, "another client is connected (127.0.0.1:40000)"),
+    P.Hello(bytes(range(16)), 0.2, 1.0),
+    P.Auth(bytes(range(32))),
 ]
 
 
@@ -80,7 +82,8 @@ def test_fuzz_random_bytes_never_raise(data):
     dec = P.FrameDecoder()
     for seq, msg in dec.feed(data):  # whatever comes out must be a valid message
         assert 0 <= seq <= 0xFFFF and msg is not None
-    assert dec.pending <= max(len(data), P.HEADER.size + P.MAX_PAYLOAD + 2)
+    # At most one incomplete frame is held, never the garbage before it.
+    assert dec.pending < P.MAX_FRAME
 
 
 @settings(max_examples=300, deadline=None)
@@ -150,3 +153,43 @@ def test_mode_names():
     assert P.parse_mode("4") == P.MODE_AUTO
     assert P.parse_mode("FAST") is None
     assert P.parse_mode(9) is None
+
+
+def test_rejections_are_summarised_per_reason_not_per_frame():
+    """64 KiB of frames with a bad version: every one counted, one line per reason to log."""
+    bad = bytearray(P.encode(P.Heartbeat(), 1))
+    bad[2] = 1
+    data = bytes(bad) * (65536 // len(bad))
+    dec = P.FrameDecoder()
+    assert dec.feed(data) == []
+    assert dec.stats.errors["bad version"] == 65536 // len(bad)
+    problems = dec.pop_problems()
+    assert len(problems) == 2 and problems[0].startswith(f"{65536 // len(bad)} x bad version")
+    assert problems[1].startswith(f"{65536 // len(bad)} x garbage")  # the rest of each frame
+    assert dec.pop_problems() == [] and dec.pending < P.MAX_FRAME
+
+
+def test_sequence_numbers_must_advance():
+    assert P.seq_advanced(5, None) and P.seq_advanced(6, 5) and P.seq_advanced(0, 65535)
+    assert not P.seq_advanced(5, 5) and not P.seq_advanced(4, 5) and not P.seq_advanced(65535, 0)
+    assert not P.seq_advanced((5 + 0x8000) & 0xFFFF, 5)
+
+
+def test_auth_mac_depends_on_key_and_nonce():
+    n1, n2 = P.new_nonce(), P.new_nonce()
+    assert n1 != n2 and len(n1) == P.NONCE_SIZE
+    mac = P.auth_mac(b"k" * 20, n1)
+    assert P.auth_ok(b"k" * 20, n1, mac)
+    assert not P.auth_ok(b"k" * 20, n2, mac) and not P.auth_ok(b"j" * 20, n1, mac)
+
+
+def test_key_files(tmp_path):
+    path = tmp_path / "sub" / "plc.key"
+    key = P.ensure_key(str(path))
+    assert len(key) >= P.MIN_KEY_CHARS and P.load_key(str(path)) == key == P.ensure_key(str(path))
+    assert (path.stat().st_mode & 0o777) == 0o600
+    (tmp_path / "short.key").write_text("abc\n")
+    with pytest.raises(P.KeyFileError, match="short.key holds 3 characters"):
+        P.load_key(str(tmp_path / "short.key"))
+    with pytest.raises(P.KeyFileError, match="missing.key does not exist"):
+        P.load_key(str(tmp_path / "missing.key"))

@@ -208,3 +208,27 @@ def test_the_planner_rebuilds_the_simulated_ground(vehicle):
     xs, ys = np.array([-3.2, 0.0, 7.7]), np.array([1.1, -4.0, 9.9])
     assert np.allclose(again.heights(xs, ys), [sim.world.ground_height(x, y) for x, y in zip(xs, ys)])
     sim.close()
+
+
+@pytest.mark.parametrize("drive,slope,command", [("2wd", 0.35, 2.0), ("4wd", -0.35, 2.0)])
+def test_the_speed_loop_brakes_a_runaway_on_a_steep_grade(vehicle, drive, slope, command):
+    """On a 35 % grade the vehicle cannot hold the command (2wd uphill slips back; downhill
+    gravity beats engine braking): the PLC's loop must brake hard, as the real one does,
+    instead of rolling back or running away while the banded ramp follows the vehicle."""
+    import dataclasses
+
+    v = dataclasses.replace(vehicle, drivetrain=dataclasses.replace(vehicle.drivetrain, drive=drive))
+    terrain = {"kind": "procedural", "size": 200.0, "roughness": 0.0, "slope": [slope, 0.0], "flat_radius": 0.0}
+    sim = make_sim(v, terrain=terrain)
+    sim.script = SetpointScript([ScriptRow(0.0, command, 0.0, 0.0)])
+    x0 = sim.world.base_state()[0][0]
+    speeds, xs = [], []
+    while sim.t < 15.0:
+        sim.step()
+        pos, _, vel = sim.world.base_state()[:3]
+        xs.append(pos[0] - x0)
+        speeds.append(math.copysign(math.hypot(vel[0], vel[1]), vel[0]))
+    margin = load_actuators(package_file("config", "actuators.yaml")).speed.overspeed_margin
+    assert min(speeds) > -(margin + 0.6), f"rolled back at {-min(speeds):.2f} m/s"
+    assert max(speeds) < command + margin + 0.6, f"ran away at {max(speeds):.2f} m/s"
+    assert min(xs) > -3.0, f"rolled back {-min(xs):.1f} m"

@@ -24,8 +24,14 @@ class DeadReckoning:
         self.v = self.h = 0.0
         self.pose = (0.0, 0.0, 0.0)
         self.history: Deque[Tuple[float, float, float, float]] = deque(maxlen=history)
+        self.rejected = 0
 
     def add(self, t: float, speed: float, handlebar: float) -> Tuple[float, float, float]:
+        """Integrate up to ``t`` and hold the new sample; a non-finite one is ignored
+        (counted in ``rejected``): one NaN must not poison the pose for good."""
+        if not all(math.isfinite(x) for x in (t, speed, handlebar)):
+            self.rejected += 1
+            return self.pose
         if self.t is not None and t > self.t:
             k_v, h0, k_d = self.calib
             self.pose = bicycle_step(*self.pose, k_v * self.v, k_d * self.ratio * (self.h + h0), self.L, t - self.t)

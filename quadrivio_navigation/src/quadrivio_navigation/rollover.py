@@ -51,6 +51,8 @@ class RolloverState:
 
 
 class RolloverMonitor:
+    MAX_RATIO = 100.0  # |f_y / f_z| used when f_z is about zero or negative
+
     def __init__(self, p: RolloverParams, ssf: float) -> None:
         if ssf <= 0.0:
             raise ValueError(f"static stability factor {ssf} must be positive")
@@ -60,6 +62,14 @@ class RolloverMonitor:
         self.fy = 0.0
         self.roll = None
         self.trip_until = -math.inf
+        self.rejected = 0  # non-finite samples skipped
+
+    def _hold(self, t: float) -> RolloverState:
+        """The state without a new sample (airborne, or a non-finite sample)."""
+        if self.t is None:
+            return RolloverState(t, 0.0, 0.0, 0.0, OK)
+        return RolloverState(t, self.ratio / self.ssf, self.roll, self.fy,
+                             TRIP if math.isfinite(t) and t < self.trip_until else OK)
 
     def update(self, t: float, f: Sequence[float], w: Sequence[float]) -> RolloverState:
         """One IMU sample: specific force ``f`` [m/s^2] and angular rate ``w`` [rad/s] in base_link.
@@ -68,13 +78,15 @@ class RolloverMonitor:
         nothing about tipping: the sample is skipped. ``f_z`` clearly negative means the
         vehicle is on its side or upside down.
         """
+        if not all(math.isfinite(x) for x in (t, *f, *w)):
+            self.rejected += 1  # one NaN or inf must not latch the filter (or a trip) for good
+            return self._hold(t)
         fy, fz = f[1], f[2]
         if math.sqrt(f[0] ** 2 + fy ** 2 + fz ** 2) < AIRBORNE * 9.81:
-            if self.t is None:
-                return RolloverState(t, 0.0, 0.0, 0.0, OK)
-            return RolloverState(t, self.ratio / self.ssf, self.roll, self.fy,
-                                 TRIP if t < self.trip_until else OK)
-        ratio = abs(fy / fz) if fz > 1e-3 else math.inf
+            return self._hold(t)
+        # On its side or upside down: far beyond any trip ratio, but finite, so that the
+        # filter comes back once the vehicle is upright again.
+        ratio = min(abs(fy / fz), self.MAX_RATIO) if fz > 1e-3 else self.MAX_RATIO
         roll_acc = math.atan2(fy, fz)
         if self.t is None or self.p.tau == 0.0:
             dt, alpha = 0.0, 0.0
@@ -82,7 +94,7 @@ class RolloverMonitor:
         else:
             dt = max(0.0, t - self.t)
             alpha = self.p.tau / (self.p.tau + dt) if dt > 0 else 1.0
-            self.ratio = alpha * self.ratio + (1 - alpha) * ratio if math.isfinite(ratio) else ratio
+            self.ratio = alpha * self.ratio + (1 - alpha) * ratio
             self.fy = alpha * self.fy + (1 - alpha) * fy
             self.roll = alpha * (self.roll + w[0] * dt) + (1 - alpha) * roll_acc
         self.t = t

@@ -3,10 +3,13 @@
 Both are ROS-free. :class:`Multiplexer` decides, for the PLC's mode, which setpoint
 frames to send (paper section 2.2: the PLC node "acts as a multiplexer between the
 autonomous drive and the manual setpoints, depending on the current operating mode").
-:class:`PlcLink` owns the socket: it connects with exponential backoff, decodes the
-PLC's frames with the shared codec, measures round-trip times from each frame to its
-ACK, and counts bad and lost frames. Sending is thread-safe; receiving happens in
-:meth:`PlcLink.poll`, called from one I/O thread.
+:class:`PlcLink` owns the socket: it connects, answers the PLC's HELLO challenge with
+the shared key (``PROTOCOL.md``, "Sessions"), and only then sends anything else; it
+retries with an exponential backoff that is reset only once a session is established
+(a PLC that refuses us is not hammered). It decodes the PLC's frames with the shared
+codec, measures round-trip times from each frame to its ACK, and counts bad and lost
+frames. Sending is thread-safe; receiving happens in :meth:`PlcLink.poll`, called from
+one I/O thread.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ class PlcClientParams:
     reconnect_min: float = param(0.1, lo=0.01, hi=60.0, unit="s", doc="first reconnection delay (wall)")
     reconnect_max: float = param(5.0, lo=0.01, hi=600.0, unit="s", doc="longest reconnection delay (wall)")
     mode_timeout: float = param(1.0, lo=0.05, hi=30.0, unit="s", doc="wait for the PLC to answer a mode request")
+    key_file: str = param("", doc="shared session key (the PLC's); empty: $ROS_HOME/quadrivio_plc.key")
     frame_id: str = param("base_link", doc="frame_id of /vehicle/state")
 
 
@@ -93,7 +97,7 @@ class Multiplexer:
 
 @dataclass
 class LinkStats:
-    connects: int = 0
+    connects: int = 0  # sessions established
     disconnects: int = 0
     frames_sent: int = 0
     frames_received: int = 0
@@ -102,6 +106,7 @@ class LinkStats:
     lost_frames: int = 0  # sequence gaps in the PLC's frames
     unanswered: int = 0  # our frames never acknowledged (dropped from the RTT table)
     refused: int = 0
+    stale_acks: int = 0  # frames the PLC reported as not advancing its sequence
 
 
 class PlcLink:
@@ -117,14 +122,20 @@ class PlcLink:
                  reconnect_max: float = 5.0, on_state: Callable[[P.State], None] = lambda s: None,
                  on_ack: Callable[[P.Ack], None] = lambda a: None,
                  on_event: Callable[[str, str], None] = lambda level, text: None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic, key_file: str = "",
+                 key: Optional[bytes] = None) -> None:
         self.host, self.port = host, port
+        self.key_file, self.key = key_file, key
         self.connect_timeout = connect_timeout
         self.reconnect_min, self.reconnect_max = reconnect_min, reconnect_max
         self.on_state, self.on_ack, self.on_event = on_state, on_ack, on_event
         self.clock = clock
         self.sel = selectors.DefaultSelector()
         self.sock: Optional[socket.socket] = None
+        self.session = False  # the PLC accepted our AUTH: frames may be sent
+        self._key = b""
+        self.auth_seq = -1
+        self.opened = 0.0  # clock at TCP connect (HELLO and AUTH must complete within connect_timeout)
         self.lock = threading.Lock()  # socket, out buffer, sequence numbers, sent times
         self.out = bytearray()
         self.seq = 0
@@ -141,40 +152,68 @@ class PlcLink:
 
     @property
     def connected(self) -> bool:
-        return self.sock is not None
+        """Whether a session with the PLC is established (not merely a TCP connection)."""
+        return self.session
 
     # ------------------------------------------------------------ connecting
+    def _fail(self, why: str) -> None:
+        self.last_error = why
+        self.on_event("warn", f"{why}; next attempt in {self.backoff:.1f} s")
+        self.next_attempt = self.clock() + self.backoff
+        self.backoff = min(self.backoff * 2.0, self.reconnect_max)
+
     def _connect(self) -> None:
         now = self.clock()
         if now < self.next_attempt:
             return
         try:
+            key = self.key if self.key is not None else P.load_key(self.key_file)
+        except P.KeyFileError as exc:
+            self._fail(str(exc))
+            return
+        try:
             sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
         except OSError as exc:
-            self.last_error = f"cannot connect to the PLC at {self.host}:{self.port}: {exc.strerror or exc}"
-            self.on_event("warn", f"{self.last_error}; next attempt in {self.backoff:.1f} s")
-            self.next_attempt = now + self.backoff
-            self.backoff = min(self.backoff * 2.0, self.reconnect_max)
+            self._fail(f"cannot connect to the PLC at {self.host}:{self.port}: {exc.strerror or exc}")
             return
         sock.setblocking(False)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         with self.lock:
             self.sock = sock
+            self.session = False
             self.out.clear()
             self.sent_at.clear()
             self.ack_callbacks.clear()
+        self._key = key
         self.decoder = P.FrameDecoder()
         self.peer_seq = None
         self.sel.register(sock, selectors.EVENT_READ)
+        self.opened = self.last_rx = now
+
+    def _on_hello(self, hello: P.Hello) -> None:
+        with self.lock:
+            if self.sock is None or self.session:
+                return
+            seq = self.seq
+            self.seq = (self.seq + 1) & 0xFFFF
+            self.out += P.encode(P.Auth(P.auth_mac(self._key, hello.nonce)), seq)
+            self.auth_seq = seq
+            error = self._flush_locked()
+        if error:
+            self._drop(error)
+
+    def _on_session(self) -> None:
+        with self.lock:
+            self.session = True
         self.stats.connects += 1
         self.backoff = self.reconnect_min
-        self.last_rx = now
         self.last_error = ""
-        self.on_event("info", f"connected to the PLC at {self.host}:{self.port}")
+        self.on_event("info", f"session with the PLC at {self.host}:{self.port} established")
 
     def _drop(self, why: str) -> None:
         with self.lock:
             sock, self.sock = self.sock, None
+            was_session, self.session = self.session, False
         if sock is None:
             return
         try:
@@ -182,11 +221,11 @@ class PlcLink:
         except (KeyError, ValueError):
             pass
         sock.close()
-        self.stats.disconnects += 1
-        self.last_error = why
-        self.next_attempt = self.clock() + self.backoff
-        self.on_event("warn", f"PLC link lost ({why}); reconnecting in {self.backoff:.1f} s")
-        self.backoff = min(self.backoff * 2.0, self.reconnect_max)
+        if was_session:
+            self.stats.disconnects += 1
+            self._fail(f"PLC link lost ({why})")
+        else:
+            self._fail(f"no session with the PLC at {self.host}:{self.port} ({why})")
 
     def close(self) -> None:
         self._drop("closed")
@@ -200,7 +239,7 @@ class PlcLink:
         registered before the frame leaves, so a fast answer cannot be missed.
         """
         with self.lock:
-            if self.sock is None:
+            if self.sock is None or not self.session:
                 return None
             seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFF
@@ -243,6 +282,9 @@ class PlcLink:
                 return
         for _key, _ in self.sel.select(timeout=timeout):
             self._read()
+        if self.sock is not None and not self.session and self.clock() - self.opened > self.connect_timeout:
+            self._drop(f"no HELLO/AUTH answer within {self.connect_timeout} s (not a version-{P.VERSION} "
+                       f"Quadrivio PLC?)")
         with self.lock:
             error = self._flush_locked() if self.sock is not None and self.out else ""
         if error:
@@ -275,8 +317,15 @@ class PlcLink:
             if isinstance(msg, P.State):
                 self.stats.states_received += 1
                 self.on_state(msg)
+            elif isinstance(msg, P.Hello):
+                self._on_hello(msg)
+            elif isinstance(msg, P.Ack) and not self.session:
+                if msg.acked_type == P.Auth.TYPE and msg.status == P.OK:
+                    self._on_session()
             elif isinstance(msg, P.Ack):
                 self.stats.acks_received += 1
+                if msg.status == P.STALE:
+                    self.stats.stale_acks += 1
                 with self.lock:
                     sent = self.sent_at.pop(msg.ack_seq, None)
                     callback = self.ack_callbacks.pop(msg.ack_seq, None)

@@ -4,7 +4,7 @@ See ``PROTOCOL.md`` for the full description. A frame (little-endian)::
 
     offset  size  field
     0       2     magic  b"QV"
-    2       1     version (1)
+    2       1     version (2)
     3       1     message type
     4       2     sequence number (per sender, wraps at 65536)
     6       2     payload length N (at most MAX_PAYLOAD)
@@ -15,21 +15,33 @@ See ``PROTOCOL.md`` for the full description. A frame (little-endian)::
 returns the valid frames; anything else (garbage, truncated or oversized frames, bad
 checksums, unknown types, wrong payload sizes) is counted per reason, reported, and
 skipped by resynchronising on the next magic. It never raises on input.
+
+Sessions (version 2): the PLC opens every connection with HELLO (a random nonce); the
+client answers AUTH, an HMAC-SHA256 of the nonce under a shared key read from a file
+(:func:`load_key`). Only then does the PLC act on the connection's frames, and only on
+frames whose sequence number advances (:func:`seq_advanced`).
 """
 
 from __future__ import annotations
 
 import binascii
+import hashlib
+import hmac
 import math
+import os
+import secrets
 import struct
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple, Union
 
 MAGIC = b"QV"
-VERSION = 1
+VERSION = 2  # 2: authenticated sessions (HELLO / AUTH), sequence numbers that must advance
 HEADER = struct.Struct("<2sBBHH")  # magic, version, type, seq, payload length
 CRC = struct.Struct("<H")
 MAX_PAYLOAD = 128
+MAX_FRAME = 8 + MAX_PAYLOAD + 2
+NONCE_SIZE = 16
+MAC_SIZE = 32  # HMAC-SHA256
 DEFAULT_PORT = 5020
 
 # Operating modes (match quadrivio_plc/VehicleState MODE_*)
@@ -47,10 +59,13 @@ FAULT_WATCHDOG, FAULT_ESTOP, FAULT_SETPOINT_CLAMPED, FAULT_LINK = 1, 2, 4, 8
 
 # Status / reason codes of ACK and REFUSED frames
 OK, BAD_TRANSITION, WRONG_SOURCE, NOT_ACCEPTING, CLAMPED, BUSY, BAD_VALUE = 0, 1, 2, 3, 4, 5, 6
+NOT_AUTHENTICATED, STALE = 7, 8
 STATUS_NAMES = {OK: "ok", BAD_TRANSITION: "mode transition not allowed",
                 WRONG_SOURCE: "setpoint source does not match the mode",
                 NOT_ACCEPTING: "mode does not accept setpoints", CLAMPED: "setpoint clamped to the limits",
-                BUSY: "another client is connected", BAD_VALUE: "value is not a finite number"}
+                BUSY: "another client session is active", BAD_VALUE: "value is not a finite number",
+                NOT_AUTHENTICATED: "not authenticated (wrong key, or a frame before AUTH)",
+                STALE: "sequence number did not advance (replayed or out-of-order frame)"}
 
 
 @dataclass(frozen=True)
@@ -86,6 +101,30 @@ class Heartbeat:
 
     def pack(self) -> bytes:
         return b""
+
+
+@dataclass(frozen=True)
+class Auth:
+    """Client -> PLC, type 0x04: the answer to HELLO, HMAC-SHA256(key, AUTH_LABEL + nonce)."""
+    TYPE = 0x04
+    FMT = struct.Struct(f"<{MAC_SIZE}s")
+    mac: bytes
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.mac)
+
+
+@dataclass(frozen=True)
+class Hello:
+    """PLC -> client, type 0x84: first frame of every connection, the challenge to answer."""
+    TYPE = 0x84
+    FMT = struct.Struct(f"<{NONCE_SIZE}sff")
+    nonce: bytes
+    watchdog: float  # [s] PLC time without a fresh setpoint before it brakes
+    session_timeout: float  # [s] PLC time without any valid frame before it ends the session
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.nonce, self.watchdog, self.session_timeout)
 
 
 @dataclass(frozen=True)
@@ -135,8 +174,8 @@ class Refused:
         return struct.pack("<B", self.reason) + self.text.encode("utf-8")[:MAX_PAYLOAD - 1]
 
 
-Message = Union[Setpoint, ModeRequest, Heartbeat, State, Ack, Refused]
-_FIXED = {cls.TYPE: cls for cls in (Setpoint, ModeRequest, Heartbeat, State, Ack)}
+Message = Union[Setpoint, ModeRequest, Heartbeat, Auth, State, Ack, Refused, Hello]
+_FIXED = {cls.TYPE: cls for cls in (Setpoint, ModeRequest, Heartbeat, Auth, State, Ack, Hello)}
 
 
 def crc16(data: bytes) -> int:
@@ -180,77 +219,160 @@ class FrameDecoder:
     """Streaming frame decoder with resynchronisation (see module docstring).
 
     ``feed(chunk)`` returns ``[(seq, message), ...]``; rejected input is counted in
-    ``stats.errors`` by reason, and ``pop_problems()`` returns human-readable reasons
-    since the last call (for logging).
+    ``stats.errors`` by reason, and ``pop_problems()`` summarises the rejections since
+    the last call, one line per reason (for rate-limited logging).
+
+    The cost is bounded per byte whatever arrives: the buffer is scanned with an index
+    (no copy per rejected byte), a rejection is a counter increment, and at most one
+    incomplete frame (< ``MAX_FRAME`` bytes) is kept between calls.
     """
 
     REASONS = ("garbage", "bad version", "oversized", "bad checksum", "unknown type", "bad payload")
 
-    def __init__(self, max_buffer: int = 65536) -> None:
+    def __init__(self) -> None:
         self.buf = bytearray()
-        self.max_buffer = max_buffer
         self.stats = DecodeStats()
-        self._problems: List[str] = []
+        self._since: Dict[str, int] = {}
+        self._first: Dict[str, str] = {}
 
     def _reject(self, reason: str, detail: str, skip: int) -> None:
         self.stats.errors[reason] = self.stats.errors.get(reason, 0) + 1
         self.stats.bytes_skipped += skip
-        self._problems.append(f"{reason}: {detail}")
-        del self.buf[:skip]
+        if reason not in self._since:
+            self._first[reason] = detail
+        self._since[reason] = self._since.get(reason, 0) + 1
 
     def pop_problems(self) -> List[str]:
-        out, self._problems = self._problems, []
+        """One line per reason rejected since the last call: count and the first example."""
+        out = [f"{n} x {reason} (first: {self._first[reason]})" if n > 1 else f"{reason}: {self._first[reason]}"
+               for reason, n in self._since.items()]
+        self._since, self._first = {}, {}
         return out
 
     @property
     def pending(self) -> int:
-        """Bytes held waiting for the rest of a frame."""
+        """Bytes held waiting for the rest of a frame (always < MAX_FRAME)."""
         return len(self.buf)
 
     def feed(self, chunk: bytes) -> List[Tuple[int, Message]]:
-        self.buf.extend(chunk)
+        buf = self.buf
+        buf.extend(chunk)
         out: List[Tuple[int, Message]] = []
+        pos, n = 0, len(buf)
         while True:
-            start = self.buf.find(MAGIC)
+            start = buf.find(MAGIC, pos)
             if start < 0:
                 # Keep a possible first magic byte at the end; drop the rest.
-                keep = 1 if self.buf[-1:] == MAGIC[:1] else 0
-                if len(self.buf) > keep:
-                    self._reject("garbage", f"{len(self.buf) - keep} bytes without a frame start", len(self.buf) - keep)
+                keep = 1 if n > pos and buf[-1:] == MAGIC[:1] else 0
+                if n - keep > pos:
+                    self._reject("garbage", f"{n - keep - pos} bytes without a frame start", n - keep - pos)
+                pos = n - keep
                 break
-            if start > 0:
-                self._reject("garbage", f"{start} bytes before a frame start", start)
-            if len(self.buf) < HEADER.size:
+            if start > pos:
+                self._reject("garbage", f"{start - pos} bytes before a frame start", start - pos)
+                pos = start
+            if n - pos < HEADER.size:
                 break
-            _, version, mtype, seq, length = HEADER.unpack_from(self.buf, 0)
+            _, version, mtype, seq, length = HEADER.unpack_from(buf, pos)
             if version != VERSION:
                 self._reject("bad version", f"version {version}, expected {VERSION}", 1)
+                pos += 1
                 continue
             if length > MAX_PAYLOAD:
                 self._reject("oversized", f"payload length {length} > {MAX_PAYLOAD}", 1)
+                pos += 1
                 continue
             total = HEADER.size + length + CRC.size
-            if len(self.buf) < total:
-                if len(self.buf) > self.max_buffer:
-                    self._reject("garbage", "buffer overflow", len(self.buf))
+            if n - pos < total:
                 break
-            body = bytes(self.buf[:HEADER.size + length])
-            (crc,) = CRC.unpack_from(self.buf, HEADER.size + length)
+            body = bytes(buf[pos:pos + HEADER.size + length])
+            (crc,) = CRC.unpack_from(buf, pos + HEADER.size + length)
             if crc != crc16(body):
                 self._reject("bad checksum", f"type 0x{mtype:02x} seq {seq}", 1)
+                pos += 1
                 continue
             try:
                 msg = _decode_payload(mtype, body[HEADER.size:])
             except KeyError:
                 self._reject("unknown type", f"type 0x{mtype:02x} seq {seq}", total)
+                pos += total
                 continue
             except (ValueError, struct.error) as exc:
                 self._reject("bad payload", f"type 0x{mtype:02x} seq {seq}: {exc}", total)
+                pos += total
                 continue
-            del self.buf[:total]
+            pos += total
             self.stats.frames += 1
             out.append((seq, msg))
+        del buf[:pos]
         return out
+
+
+# ------------------------------------------------------------------ session keys
+AUTH_LABEL = b"quadrivio-plc-auth-v2"
+MIN_KEY_CHARS = 16
+
+
+class KeyFileError(ValueError):
+    """The shared key file is missing, unreadable or too short (the message names it)."""
+
+
+def default_key_file() -> str:
+    """``$ROS_HOME/quadrivio_plc.key`` (``~/.ros`` without ROS_HOME): the key both ends read."""
+    home = os.environ.get("ROS_HOME") or os.path.join(os.path.expanduser("~"), ".ros")
+    return os.path.join(home, "quadrivio_plc.key")
+
+
+def load_key(path: str) -> bytes:
+    """The shared key: the file's text, surrounding whitespace removed, at least 16 characters."""
+    path = path or default_key_file()
+    try:
+        with open(path, "rb") as fh:
+            key = fh.read(4096).strip()
+    except FileNotFoundError:
+        raise KeyFileError(f"PLC key file {path} does not exist (the emulated PLC creates it; for the "
+                           f"vehicle, copy the PLC's key there)") from None
+    except OSError as exc:
+        raise KeyFileError(f"PLC key file {path} cannot be read: {exc.strerror or exc}") from None
+    if len(key) < MIN_KEY_CHARS:
+        raise KeyFileError(f"PLC key file {path} holds {len(key)} characters; a key needs at least "
+                           f"{MIN_KEY_CHARS}")
+    return key
+
+
+def ensure_key(path: str) -> bytes:
+    """The key in ``path``; a new random one (mode 0600, written atomically) if there is no file."""
+    path = path or default_key_file()
+    if not os.path.exists(path):
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        tmp = f"{path}.{os.getpid()}.tmp"
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        with os.fdopen(fd, "w") as fh:
+            fh.write(secrets.token_hex(32) + "\n")
+        try:
+            os.link(tmp, path)  # fails if another process made one meanwhile: keep theirs
+        except FileExistsError:
+            pass
+        finally:
+            os.unlink(tmp)
+    return load_key(path)
+
+
+def new_nonce() -> bytes:
+    return secrets.token_bytes(NONCE_SIZE)
+
+
+def auth_mac(key: bytes, nonce: bytes) -> bytes:
+    return hmac.new(key, AUTH_LABEL + nonce, hashlib.sha256).digest()
+
+
+def auth_ok(key: bytes, nonce: bytes, mac: bytes) -> bool:
+    return hmac.compare_digest(auth_mac(key, nonce), mac)
+
+
+def seq_advanced(seq: int, last: Optional[int]) -> bool:
+    """Whether ``seq`` is after ``last`` (mod 65536, within half the range)."""
+    return last is None or 0 < ((seq - last) & 0xFFFF) < 0x8000
 
 
 def finite(*values: float) -> bool:

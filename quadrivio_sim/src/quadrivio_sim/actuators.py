@@ -17,6 +17,8 @@ Speed (throttle/brake servos, torque at the wheels)::
     r'      = clip((v_sp - r) / dt, -a_dec, a_acc),  r in [v - b, v + b]   setpoint ramp (0: no limit)
     u       = clip(u_ff + PID(r - v), -1, 1),  u_ff = f_0 + f_1 |r| + f_a r'  (f_0 only while r != 0)
     throttle_cmd = max(u, 0) (1 - b_sp),  brake_cmd = max(b_sp, k_b * max(-u - d_b, 0))
+    e_over = outside(sgn(v_sp) v, [-m_r, max(|v_sp|, |r_free|) + m_o])           runaway guard
+    e_over > 0:  throttle_cmd = 0,  brake_cmd = 1 against the command, else max(brake_cmd, k_o e_over)
     throttle' = (throttle_cmd - throttle) / tau_t,  brake' = (brake_cmd - brake) / tau_b
     T_drive = gear * throttle * T_max  -  c_eb * (1 - throttle) * w_wheel     (engine braking)
     T_brake = brake * B_max                                                  (opposes rotation)
@@ -27,6 +29,15 @@ resistance and engine braking: ``f_0 + f_1 |r|``) and for the ramp's acceleratio
 integral handles what is left (slopes, load) without winding up. The engine-braking term
 ``c_eb`` is what makes deceleration differ from acceleration when the throttle is
 suddenly closed (the mismatch of the paper's Fig. 4b).
+
+The runaway guard is what a real PLC adds to the loop: the ramp follows the vehicle
+within ``b`` (it waits for a vehicle that cannot keep up), so on a steep slope the PID
+alone sees only a small error while the vehicle rolls back or runs away downhill. The
+guard compares the speed along the commanded direction with the command itself and
+with ``r_free``, the same ramp without the band (how fast the vehicle may still be
+while it slows down as commanded): moving against the command by more than ``m_r``
+closes the throttle and brakes fully; faster than both by more than ``m_o`` closes the
+throttle and brakes in proportion.
 """
 
 from __future__ import annotations
@@ -113,6 +124,12 @@ class SpeedLoopParams:
     engine_brake: float = param(6.0, lo=0.0, hi=1e4, unit="N m s/rad",
                                 doc="engine braking torque per wheel rad/s at closed throttle (total)")
     dead_time: float = param(0.0, lo=0.0, hi=2.0, unit="s", doc="command path dead time")
+    overspeed_margin: float = param(1.0, lo=0.05, hi=10.0, unit="m/s",
+                                    doc="runaway guard: speed beyond the command allowed before braking")
+    rollback_margin: float = param(0.2, lo=0.01, hi=10.0, unit="m/s",
+                                   doc="runaway guard: speed against the command allowed before braking")
+    overspeed_brake_gain: float = param(2.0, lo=0.0, hi=100.0, unit="s/m",
+                                        doc="runaway guard: brake per m/s beyond the overspeed margin (0: no guard)")
 
 
 @dataclass(frozen=True)
@@ -197,13 +214,36 @@ class SpeedLoop:
         self.brake = 0.0  # [1]
         self.gear = 1  # +1 forward, -1 reverse (engaged by the sign of the setpoint)
         self.ramp = 0.0  # [m/s] ramped setpoint
+        self.ramp_free = 0.0  # [m/s] the same ramp without the band (runaway guard)
+        self.overspeed = 0.0  # [m/s] how far outside the allowed speeds the vehicle was last cycle
 
     def reset(self) -> None:
         self.pid.reset()
         self.delay = _DelayLine(self.delay.n)
         self.throttle = self.brake = 0.0
         self.gear = 1
-        self.ramp = 0.0
+        self.ramp = self.ramp_free = self.overspeed = 0.0
+
+    def _free_ramp(self, sp: float) -> float:
+        d = sp - self.ramp_free
+        speeding_up = abs(sp) > abs(self.ramp_free) and sp * self.ramp_free >= 0.0
+        limit = self.p.max_accel if speeding_up else self.p.max_decel
+        if limit > 0.0:
+            d = clamp(d, -limit * self.dt, limit * self.dt)
+        self.ramp_free += d
+        return self.ramp_free
+
+    def _runaway(self, target: float, speed: float) -> Tuple[float, bool]:
+        """How far [m/s] the speed along the commanded direction is outside
+        ``[-m_r, max(|cmd|, |r_free|) + m_o]``. The direction is the command's, not the
+        engaged gear's: the banded ramp follows a vehicle rolling back through zero and
+        would engage reverse with it. Also says whether the vehicle moves against the command."""
+        direction = 1 if target > 1e-3 else -1 if target < -1e-3 else self.gear
+        along = direction * speed
+        limit = max(abs(target), abs(self._free_ramp(target))) + self.p.overspeed_margin
+        if along < -self.p.rollback_margin:
+            return -self.p.rollback_margin - along, True
+        return max(0.0, along - limit), False
 
     def _ramp(self, sp: float, speed: float) -> Tuple[float, float]:
         """Move the ramped setpoint toward ``sp`` at most at the acceleration limits and
@@ -239,6 +279,11 @@ class SpeedLoop:
         brake_cmd = max(brake_sp, self.p.brake_gain * max(-u - self.p.brake_deadband, 0.0))
         if abs(target) <= 1e-3 and abs(sp) <= 1e-3 and abs(speed) < 0.05:  # standing still: hold the brake
             throttle_cmd, brake_cmd = 0.0, max(brake_cmd, 0.3)
+        self.overspeed, against = self._runaway(target, speed)
+        if self.overspeed > 0.0 and self.p.overspeed_brake_gain > 0.0:
+            # Against the command: full brake (the vehicle is rolling back). Too fast: in proportion.
+            throttle_cmd = 0.0
+            brake_cmd = 1.0 if against else max(brake_cmd, self.p.overspeed_brake_gain * self.overspeed)
         self.throttle = first_order(self.throttle, clamp(throttle_cmd, 0.0, 1.0), self.p.throttle_tau, self.dt)
         self.brake = first_order(self.brake, clamp(brake_cmd, 0.0, 1.0), self.p.brake_tau, self.dt)
         drive = self.gear * self.throttle * self.v.drivetrain.max_drive_torque

@@ -1,22 +1,28 @@
 """The emulated X20 PLC: operating modes, setpoint gating, watchdog, low-level loops,
-and its TCP server (paper section 3.3 and Fig. 5).
+and its TCP server (paper section 3.3 and Fig. 5). The safety contract it enforces is
+written in ``quadrivio_plc/PROTOCOL.md`` ("Safety contract").
 
 :class:`PlcLogic` is the PLC program, driven by sim time. It mirrors the real
 vehicle's modes::
 
     HALT --request--> SAFE --request--> MANUAL | ASSISTED | AUTO
     any  --request--> HALT;   MANUAL | ASSISTED | AUTO --request--> SAFE or another of them
-    MANUAL | ASSISTED | AUTO --no valid frame for `watchdog` s--> SAFE (+ FAULT_WATCHDOG)
+    MANUAL | ASSISTED | AUTO --no fresh setpoint for `watchdog` s--> SAFE (+ FAULT_WATCHDOG)
+    MANUAL | ASSISTED | AUTO --session lost--> SAFE (+ FAULT_LINK)
 
 and accepts setpoints only from the source matching the mode: MANUAL takes everything
 from the manual source, AUTO from the autonomous one, ASSISTED the handlebar from the
 autonomous source and speed and brake from the manual one (a safety driver on the
-throttle). SAFE holds the brake; HALT also freezes the handlebar servo.
+throttle). Only an accepted setpoint of the source the mode drives from feeds the
+watchdog; heartbeats, mode requests, refused or non-finite setpoints never do. SAFE
+holds the brake; HALT also freezes the handlebar servo.
 
-:class:`PlcServer` is its transport: a non-blocking TCP server (one client at a time; a
-second connection gets a REFUSED frame with the reason and is closed) that answers
-every valid frame with an ACK at once and sends STATE frames at the state rate. It is
-polled from the simulator loop, so frames are handled between physics steps.
+:class:`PlcServer` is its transport: a non-blocking TCP server polled from the simulator
+loop, so frames are handled between physics steps. Every connection starts with a HELLO
+challenge; only a connection that answers it with the shared key becomes the session,
+one at a time, and only the session's frames with advancing sequence numbers reach the
+program. Work per poll is bounded (bytes read per connection, pending connections), and
+rejected input is counted and logged at most once a second per kind.
 """
 
 from __future__ import annotations
@@ -25,8 +31,9 @@ import errno
 import math
 import selectors
 import socket
-from dataclasses import dataclass
-from typing import Callable, List, Optional, Tuple
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Dict, List, Optional, Tuple
 
 from quadrivio_description.config import param
 from quadrivio_plc import protocol as P
@@ -40,7 +47,14 @@ class PlcParams:
     port: int = param(P.DEFAULT_PORT, lo=0, hi=65535, doc="TCP port (0: any free port)")
     cycle: float = param(0.01, lo=0.001, hi=0.1, unit="s", doc="PLC cycle of the low-level loops")
     state_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="rate of STATE frames to the client")
-    watchdog: float = param(0.2, lo=0.01, hi=10.0, unit="s", doc="brake when no valid frame arrives for this long")
+    watchdog: float = param(0.2, lo=0.01, hi=10.0, unit="s",
+                            doc="brake and go to SAFE when no fresh setpoint of the mode's source arrives for this long")
+    session_timeout: float = param(1.0, lo=0.05, hi=60.0, unit="s",
+                                   doc="end the session when no valid frame at all arrives for this long (PLC time)")
+    auth_timeout: float = param(2.0, lo=0.1, hi=60.0, unit="s",
+                                doc="close a connection that has not authenticated within this (wall time)")
+    max_pending: int = param(4, lo=1, hi=64, doc="connections allowed to be authenticating at once")
+    key_file: str = param("", doc="shared session key; empty: $ROS_HOME/quadrivio_plc.key (created if missing)")
     initial_mode: str = param("SAFE", choices=("HALT", "SAFE"), doc="mode at power-on")
     hold_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake applied in SAFE and HALT")
 
@@ -54,6 +68,16 @@ for _m in DRIVING:
     ALLOWED[_m] = {P.MODE_HALT, P.MODE_SAFE, *DRIVING}
 
 
+def _roles(mode: int, source: int) -> Tuple[bool, bool]:
+    """(takes speed and brake, takes handlebar) from ``source`` in ``mode``."""
+    motion = (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
+             (mode == P.MODE_AUTO and source == P.SOURCE_AUTO) or \
+             (mode == P.MODE_ASSISTED and source == P.SOURCE_MANUAL)
+    handlebar = (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
+                (mode in (P.MODE_AUTO, P.MODE_ASSISTED) and source == P.SOURCE_AUTO)
+    return motion, handlebar
+
+
 class PlcLogic:
     """The PLC program (see module docstring). Times are PLC clock seconds (sim time)."""
 
@@ -65,60 +89,92 @@ class PlcLogic:
     def reset(self, t: float) -> None:
         self.mode = P.MODE_BY_NAME[self.p.initial_mode]
         self.faults = 0
-        self.last_rx = -math.inf
+        self.last_rx = -math.inf  # last valid frame of the session
+        self.fresh_motion = -math.inf  # last accepted speed/brake setpoint of the mode's source
+        self.fresh_handlebar = -math.inf  # last accepted handlebar setpoint of the mode's source
         self.last_seq = 0
         self.sp_speed = 0.0
         self.sp_handlebar = 0.0
-        self.sp_brake = 0.0
+        self.sp_brake = self.p.hold_brake
+        self.watchdog_trips = 0
+        self.link_losses = 0
         self.control.reset()
         self.events: List[str] = []
 
+    @property
+    def fresh_since(self) -> float:
+        """PLC time of the oldest setpoint role the mode depends on (what the watchdog checks)."""
+        return min(self.fresh_motion, self.fresh_handlebar)
+
+    def _stop(self, mode: int, fault: int, why: str) -> None:
+        """Leave a driving mode for SAFE or HALT: brake, handlebar held, setpoints cleared."""
+        self.events.append(f"{why} ({P.mode_name(self.mode)} -> {P.mode_name(mode)})")
+        self.mode = mode
+        self.faults |= fault
+        self.sp_speed, self.sp_brake = 0.0, self.p.hold_brake
+        self.sp_handlebar = self.control.handlebar.angle
+
     # -------------------------------------------------------------- frames
     def handle(self, t: float, seq: int, msg: P.Message) -> Optional[P.Ack]:
-        """React to one valid client frame; returns the ACK to send (None for none)."""
+        """React to one valid frame of the authenticated session; returns the ACK to send."""
         self.last_rx = t
         self.last_seq = seq
         if isinstance(msg, P.ModeRequest):
-            return P.Ack(seq, msg.TYPE, self.request_mode(msg.mode), self.mode)
+            return P.Ack(seq, msg.TYPE, self.request_mode(msg.mode, t), self.mode)
         if isinstance(msg, P.Setpoint):
-            return P.Ack(seq, msg.TYPE, self.setpoint(msg.source, msg.speed, msg.handlebar, msg.brake), self.mode)
-        if isinstance(msg, P.Heartbeat):
+            return P.Ack(seq, msg.TYPE, self.setpoint(msg.source, msg.speed, msg.handlebar, msg.brake, t), self.mode)
+        if isinstance(msg, (P.Heartbeat, P.Auth)):
             return P.Ack(seq, msg.TYPE, P.OK, self.mode)
         return None  # PLC-to-client messages coming back: ignored
 
-    def request_mode(self, mode: int) -> int:
+    def request_mode(self, mode: int, t: float = 0.0) -> int:
         if mode not in P.MODE_NAMES or mode not in ALLOWED[self.mode]:
             self.events.append(f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
             return P.BAD_TRANSITION
         if mode != self.mode:
-            self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
             if mode in DRIVING and self.mode not in DRIVING:
-                # Start from standstill with the handlebar where it is.
+                # Start from standstill with the handlebar where it is; the client has one
+                # watchdog period from now to send its first setpoint.
+                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
                 self.sp_speed, self.sp_brake = 0.0, 0.0
                 self.sp_handlebar = self.control.handlebar.angle
-            self.mode = mode
+                self.fresh_motion = self.fresh_handlebar = t
+                self.mode = mode
+            elif mode in DRIVING:
+                # Between driving modes: the new source must be fresh within what is left
+                # of the current watchdog period (a mode change never feeds the watchdog).
+                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+                self.fresh_motion = self.fresh_handlebar = self.fresh_since
+                self.mode = mode
+            elif self.mode in DRIVING:
+                self._stop(mode, 0, "stop requested")
+            else:
+                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+                self.mode = mode
         if mode in DRIVING:
-            self.faults &= ~P.FAULT_WATCHDOG
+            self.faults &= ~(P.FAULT_WATCHDOG | P.FAULT_LINK)
         self.faults = (self.faults | P.FAULT_ESTOP) if mode == P.MODE_HALT else (self.faults & ~P.FAULT_ESTOP)
         return P.OK
 
-    def setpoint(self, source: int, speed: float, handlebar: float, brake: float) -> int:
+    def setpoint(self, source: int, speed: float, handlebar: float, brake: float,
+                 t: Optional[float] = None) -> int:
+        """Apply a setpoint; an accepted one at PLC time ``t`` feeds the watchdog for its roles."""
         if not P.finite(speed, handlebar, brake):
             return P.BAD_VALUE
         if self.mode not in DRIVING:
             return P.NOT_ACCEPTING
-        takes_motion = (self.mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
-                       (self.mode == P.MODE_AUTO and source == P.SOURCE_AUTO) or \
-                       (self.mode == P.MODE_ASSISTED and source == P.SOURCE_MANUAL)
-        takes_handlebar = (self.mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
-                          (self.mode in (P.MODE_AUTO, P.MODE_ASSISTED) and source == P.SOURCE_AUTO)
+        takes_motion, takes_handlebar = _roles(self.mode, source)
         if not (takes_motion or takes_handlebar):
             return P.WRONG_SOURCE
         c_speed, c_handlebar, c_brake, clamped = self.control.clamp(speed, handlebar, brake)
         if takes_motion:
             self.sp_speed, self.sp_brake = c_speed, c_brake
+            if t is not None:
+                self.fresh_motion = t
         if takes_handlebar:
             self.sp_handlebar = c_handlebar
+            if t is not None:
+                self.fresh_handlebar = t
         if clamped:
             self.faults |= P.FAULT_SETPOINT_CLAMPED
             self.events.append(f"setpoint clamped: speed {speed:.3f} -> {c_speed:.3f} m/s, handlebar "
@@ -134,17 +190,22 @@ class PlcLogic:
             if self.mode not in DRIVING:
                 self.sp_handlebar = self.control.handlebar.angle
             self.mode = P.MODE_AUTO
-            self.faults &= ~(P.FAULT_WATCHDOG | P.FAULT_ESTOP)
-        self.last_rx = t
+            self.faults &= ~(P.FAULT_WATCHDOG | P.FAULT_ESTOP | P.FAULT_LINK)
+        self.last_rx = self.fresh_motion = self.fresh_handlebar = t
+
+    def link_lost(self, t: float, why: str) -> None:
+        """The session ended (closed, failed, silent or replaced): a driving PLC brakes to SAFE."""
+        self.link_losses += 1
+        if self.mode in DRIVING:
+            self._stop(P.MODE_SAFE, P.FAULT_LINK, f"link lost ({why}): braking")
 
     # --------------------------------------------------------------- cycle
     def cycle(self, t: float, wheel_speed: float, wheel_rate: float) -> Actuation:
         """One PLC cycle at time ``t``: watchdog, then the low-level loops."""
-        if self.mode in DRIVING and t - self.last_rx > self.p.watchdog:
-            self.events.append(f"watchdog: no valid frame for {t - self.last_rx:.3f} s > {self.p.watchdog} s, "
-                               f"braking ({P.mode_name(self.mode)} -> SAFE)")
-            self.mode = P.MODE_SAFE
-            self.faults |= P.FAULT_WATCHDOG
+        if self.mode in DRIVING and t - self.fresh_since > self.p.watchdog:
+            self.watchdog_trips += 1
+            self._stop(P.MODE_SAFE, P.FAULT_WATCHDOG,
+                       f"watchdog: no fresh setpoint for {t - self.fresh_since:.3f} s > {self.p.watchdog} s, braking")
         if self.mode in DRIVING:
             return self.control.step(self.sp_speed, self.sp_handlebar, self.sp_brake, wheel_speed, wheel_rate)
         handlebar = None if self.mode == P.MODE_HALT else self.control.handlebar.angle
@@ -160,18 +221,51 @@ class PlcLogic:
         return ev
 
 
+@dataclass
+class _Conn:
+    sock: socket.socket
+    peer: str
+    nonce: bytes
+    opened: float  # wall time of accept
+    decoder: P.FrameDecoder = field(default_factory=P.FrameDecoder)
+    out: bytearray = field(default_factory=bytearray)
+    authed: bool = False
+    last_seq: Optional[int] = None
+    last_rx: float = -math.inf  # PLC time of the last valid frame
+
+
+@dataclass
+class ServerStats:
+    sessions: int = 0
+    refused: int = 0  # connections refused: busy, too many pending, failed or missing authentication
+    auth_failures: int = 0
+    stale_frames: int = 0  # frames whose sequence number did not advance (not acted on)
+    disconnects: int = 0
+    frames: int = 0  # valid frames of sessions
+    bad_frames: Dict[str, int] = field(default_factory=dict)  # by reason, every connection
+
+
 class PlcServer:
     """Non-blocking TCP transport of :class:`PlcLogic` (see module docstring).
 
     ``clock`` returns the PLC time (sim time) at which incoming frames are handled.
-    ``log(level, text)`` receives connection events and rejected input.
+    ``log(level, text)`` receives connection events and (rate-limited) rejected input.
+    ``key`` is the shared session key (bytes); None reads or creates ``params.key_file``.
     """
 
+    READ_CHUNK = 4096  # bytes read per connection and poll: the parser's work per poll is bounded
+    LOG_INTERVAL = 1.0  # [s wall] at most one log line per kind of rejection and interval
+    GARBAGE_BEFORE_AUTH = 64  # bytes of rejected input an unauthenticated connection may send
+
     def __init__(self, logic: PlcLogic, host: str, port: int, clock: Callable[[], float],
-                 log: Callable[[str, str], None]) -> None:
+                 log: Callable[[str, str], None], key: Optional[bytes] = None,
+                 wall: Callable[[], float] = time.monotonic) -> None:
         self.logic = logic
+        self.p = logic.p
         self.clock = clock
+        self.wall = wall
         self.log = log
+        self.key = key if key is not None else P.ensure_key(self.p.key_file)
         self.sel = selectors.DefaultSelector()
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -180,30 +274,56 @@ class PlcServer:
         except OSError as exc:
             self.listener.close()
             raise OSError(exc.errno, f"emulated PLC cannot listen on {host}:{port}: {exc.strerror}") from exc
-        self.listener.listen(4)
+        self.listener.listen(8)
         self.listener.setblocking(False)
         self.address: Tuple[str, int] = self.listener.getsockname()
-        self.sel.register(self.listener, selectors.EVENT_READ, "listen")
-        self.client: Optional[socket.socket] = None
-        self.peer = ""
-        self.decoder = P.FrameDecoder()
-        self.out = bytearray()
+        self.sel.register(self.listener, selectors.EVENT_READ, None)
+        self.session: Optional[_Conn] = None
+        self.pending: Dict[socket.socket, _Conn] = {}
         self.seq = 0
         self.frames_sent = 0
-        self.refused = 0
-        self.disconnects = 0
+        self.stats = ServerStats()
+        self._logged: Dict[str, float] = {}
+        self._suppressed: Dict[str, int] = {}
 
     @property
     def connected(self) -> bool:
-        return self.client is not None
+        """Whether an authenticated session is established."""
+        return self.session is not None
 
+    @property
+    def peer(self) -> str:
+        return self.session.peer if self.session is not None else ""
+
+    # ------------------------------------------------------------- logging
+    def _log_limited(self, kind: str, level: str, text: str) -> None:
+        now = self.wall()
+        if now - self._logged.get(kind, -math.inf) < self.LOG_INTERVAL:
+            self._suppressed[kind] = self._suppressed.get(kind, 0) + 1
+            return
+        n = self._suppressed.pop(kind, 0)
+        self._logged[kind] = now
+        self.log(level, text + (f" (and {n} more like it since the last report)" if n else ""))
+
+    # ------------------------------------------------------------- polling
     def poll(self, timeout: float = 0.0) -> None:
         """Handle pending connections and frames, waiting at most ``timeout`` wall seconds."""
         for key, _ in self.sel.select(timeout=max(0.0, timeout)):
-            if key.data == "listen":
+            if key.data is None:
                 self._accept()
             else:
-                self._read()
+                self._read(key.data)
+        self._expire()
+
+    def _expire(self) -> None:
+        s = self.session
+        if s is not None and self.clock() - s.last_rx > self.p.session_timeout:
+            self._end_session(f"no valid frame for {self.clock() - s.last_rx:.2f} s > session_timeout "
+                              f"{self.p.session_timeout} s")
+        if self.pending:
+            now = self.wall()
+            for conn in [c for c in self.pending.values() if now - c.opened > self.p.auth_timeout]:
+                self._refuse(conn, P.NOT_AUTHENTICATED, f"no authentication within {self.p.auth_timeout} s")
 
     def _accept(self) -> None:
         try:
@@ -211,80 +331,155 @@ class PlcServer:
         except OSError:
             return
         peer = f"{addr[0]}:{addr[1]}"
-        if self.client is not None:
-            self.refused += 1
-            self.log("warn", f"refused PLC connection from {peer}: a client ({self.peer}) is already connected")
-            try:
-                sock.sendall(P.encode(P.Refused(P.BUSY, f"another client is connected ({self.peer})"), 0))
-            except OSError:
-                pass
-            sock.close()
-            return
         sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.client, self.peer = sock, peer
-        self.decoder = P.FrameDecoder()
-        self.out.clear()
-        self.sel.register(sock, selectors.EVENT_READ, "client")
-        self.log("info", f"PLC client connected from {peer}")
-
-    def _drop(self, why: str) -> None:
-        if self.client is None:
+        conn = _Conn(sock, peer, P.new_nonce(), self.wall())
+        if len(self.pending) >= self.p.max_pending:
+            self._refuse(conn, P.BUSY, f"{len(self.pending)} connections are already authenticating")
             return
-        self.log("warn", f"PLC client {self.peer} disconnected: {why}")
-        self.sel.unregister(self.client)
-        self.client.close()
-        self.client = None
-        self.disconnects += 1
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.pending[sock] = conn
+        self.sel.register(sock, selectors.EVENT_READ, conn)
+        self._send(conn, P.Hello(conn.nonce, self.p.watchdog, self.p.session_timeout))
+        self._flush(conn)
 
-    def _read(self) -> None:
-        assert self.client is not None
+    def _close(self, conn: _Conn) -> None:
+        self.pending.pop(conn.sock, None)
         try:
-            data = self.client.recv(65536)
+            self.sel.unregister(conn.sock)
+        except (KeyError, ValueError):
+            pass
+        conn.sock.close()
+
+    def _refuse(self, conn: _Conn, reason: int, why: str) -> None:
+        """Tell a connection why it is not served (REFUSED), then close it."""
+        self.stats.refused += 1
+        self._log_limited(f"refused {reason}", "warn", f"refused PLC connection from {conn.peer}: {why}")
+        try:
+            conn.sock.send(P.encode(P.Refused(reason, why), self.seq))
+        except OSError:
+            pass
+        self._close(conn)
+
+    def _end_session(self, why: str) -> None:
+        s = self.session
+        if s is None:
+            return
+        self.logic.link_lost(self.clock(), why)  # braked before anything else can connect
+        self.session = None
+        self.stats.disconnects += 1
+        self.log("warn", f"PLC session with {s.peer} ended: {why}")
+        self._close(s)
+
+    def _read(self, conn: _Conn) -> None:
+        try:
+            data = conn.sock.recv(self.READ_CHUNK)
         except BlockingIOError:
             return
         except OSError as exc:
-            self._drop(str(exc))
-            return
+            data, error = b"", str(exc)
+        else:
+            error = "connection closed"
         if not data:
-            self._drop("connection closed")
+            if conn is self.session:
+                self._end_session(error)
+            else:
+                self._close(conn)
             return
         t = self.clock()
-        for seq, msg in self.decoder.feed(data):
+        frames = conn.decoder.feed(data)
+        for reason, n in conn.decoder.stats.errors.items():
+            self.stats.bad_frames[reason] = self.stats.bad_frames.get(reason, 0) + n
+        conn.decoder.stats.errors.clear()
+        problems = conn.decoder.pop_problems()
+        if problems:
+            self._log_limited("bad frames", "warn", f"PLC frames from {conn.peer} rejected and skipped: "
+                                                    f"{'; '.join(problems)}")
+        if not conn.authed:
+            frames = self._authenticate(conn, frames, t)
+        self._handle(conn, frames, t)
+
+    def _handle(self, conn: _Conn, frames, t: float) -> None:
+        """Frames of the session: only those whose sequence number advances reach the program."""
+        for seq, msg in frames:
+            if self.session is not conn:
+                return
+            if not P.seq_advanced(seq, conn.last_seq):
+                self.stats.stale_frames += 1
+                self._log_limited("stale", "warn", f"PLC frame seq {seq} from {conn.peer} does not advance "
+                                                   f"(last {conn.last_seq}): replayed or reordered, ignored")
+                self._send(conn, P.Ack(seq, getattr(msg, "TYPE", 0), P.STALE, self.logic.mode))
+                continue
+            conn.last_seq, conn.last_rx = seq, t
+            self.stats.frames += 1
             ack = self.logic.handle(t, seq, msg)
             if ack is not None:
-                self._send(ack)
-        for problem in self.decoder.pop_problems():
-            self.log("warn", f"PLC frame from {self.peer} rejected ({problem}); skipped")
-        self._flush()
+                self._send(conn, ack)
+        self._flush(conn)
 
-    def _send(self, msg: P.Message) -> None:
-        self.out += P.encode(msg, self.seq)
+    def _authenticate(self, conn: _Conn, frames, t: float):
+        """The first frame of a connection must be AUTH with the right MAC; returns the frames
+        left to handle once it is the session (none otherwise)."""
+        if conn.decoder.stats.bytes_skipped > self.GARBAGE_BEFORE_AUTH:
+            self._refuse(conn, P.NOT_AUTHENTICATED, "unframed input before authentication")
+            return []
+        if not frames:
+            return []
+        seq, msg = frames[0]
+        if not isinstance(msg, P.Auth) or not P.auth_ok(self.key, conn.nonce, msg.mac):
+            self.stats.auth_failures += 1
+            what = "wrong key" if isinstance(msg, P.Auth) else f"{type(msg).__name__} before AUTH"
+            self._refuse(conn, P.NOT_AUTHENTICATED, f"authentication failed ({what})")
+            return []
+        s = self.session
+        if s is not None and t - s.last_rx <= self.p.watchdog:
+            self._refuse(conn, P.BUSY, f"a session with {s.peer} is active")
+            return []
+        if s is not None:
+            self._end_session(f"replaced by a new session from {conn.peer} after {t - s.last_rx:.2f} s of silence")
+        self.pending.pop(conn.sock, None)
+        conn.authed, conn.last_seq, conn.last_rx = True, seq, t
+        self.session = conn
+        self.stats.sessions += 1
+        self.log("info", f"PLC session opened by {conn.peer} (mode {P.mode_name(self.logic.mode)})")
+        self._send(conn, P.Ack(seq, P.Auth.TYPE, P.OK, self.logic.mode))
+        return frames[1:]
+
+    def _send(self, conn: _Conn, msg: P.Message) -> None:
+        conn.out += P.encode(msg, self.seq)
         self.seq = (self.seq + 1) & 0xFFFF
         self.frames_sent += 1
 
-    def _flush(self) -> None:
-        if self.client is None or not self.out:
+    def _flush(self, conn: _Conn) -> None:
+        if not conn.out:
             return
         try:
-            n = self.client.send(self.out)
-            del self.out[:n]
+            n = conn.sock.send(conn.out)
+            del conn.out[:n]
         except BlockingIOError:
             pass
         except OSError as exc:
-            self._drop(str(exc))
+            if conn is self.session:
+                self._end_session(str(exc))
+            else:
+                self._close(conn)
             return
-        if len(self.out) > 1 << 20:
-            self._drop("client does not read (1 MiB of frames queued)")
+        if len(conn.out) > 1 << 20:
+            if conn is self.session:
+                self._end_session("the client does not read (1 MiB of frames queued)")
+            else:
+                self._close(conn)
 
     def send_state(self, state: P.State) -> None:
-        if self.client is not None:
-            self._send(state)
-            self._flush()
+        if self.session is not None:
+            conn = self.session
+            self._send(conn, state)
+            self._flush(conn)
 
     def close(self) -> None:
-        if self.client is not None:
-            self._drop("PLC shutting down")
+        if self.session is not None:
+            self._end_session("PLC shutting down")
+        for conn in list(self.pending.values()):
+            self._close(conn)
         self.sel.unregister(self.listener)
         self.listener.close()
         self.sel.close()

@@ -32,7 +32,7 @@ from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning
@@ -49,6 +49,8 @@ class NodeParams:
     base_frame: str = param("base_link")
     publish_tf: bool = param(True, doc="publish map -> odom -> base_link")
     calibration_period: float = param(1.0, lo=0.05, hi=60.0, unit="s", doc="period of localization/calibration")
+    max_future: float = param(0.5, lo=0.0, hi=60.0, unit="s",
+                              doc="inputs stamped further ahead of the clock are rejected (and counted)")
 
 
 class LocalizationNode:
@@ -56,16 +58,16 @@ class LocalizationNode:
         mine, rest = split_params(private_params(), NodeParams)
         self.np: NodeParams = node_params(NodeParams, mine)
         self.p: LocalizerParams = with_scenario(node_params(LocalizerParams, rest), "localization")
-        vehicle = vehicle_params()
-        self.loc = Localizer(self.p, vehicle, site_params())
-        self.dr = DeadReckoning(vehicle.wheelbase, vehicle.steering.ratio)
+        self.vehicle, self.site = vehicle_params(), site_params()
         self.lock = threading.Lock()  # the smoother is fed from subscriber threads, updated on the timer
+        self.guard = input_guard(self.np.max_future)
+        self.resets = 0
+        self._fresh_state()
         self.pub_odom = rospy.Publisher("localization/odom", Odometry, queue_size=20)
         self.pub_cal = rospy.Publisher("localization/calibration", Calibration, queue_size=5, latch=True)
         self.tf = tf2_ros.TransformBroadcaster() if self.np.publish_tf else None
-        self.estimate = None
         self.update_ms = []
-        self.last_cal = -math.inf
+        on_clock_jump(self._on_clock_jump)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=100)
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=200)
         rospy.Subscriber("imu/mag", MagneticField, self._on_mag, queue_size=100)
@@ -76,9 +78,30 @@ class LocalizationNode:
         guarded_timer(1.0 / self.p.rate, self._tick, "localization update")
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
 
+    def _fresh_state(self) -> None:
+        self.loc = Localizer(self.p, self.vehicle, self.site)
+        self.dr = DeadReckoning(self.vehicle.wheelbase, self.vehicle.steering.ratio)
+        self.estimate = None
+        self.last_cal = -math.inf
+
+    def _on_clock_jump(self, before: float, now: float) -> None:
+        with self.lock:
+            self._fresh_state()
+            self.resets += 1
+        rospy.logwarn("localization restarted: the clock moved back from %.3f s to %.3f s", before, now)
+
+    def _accept(self, what: str, stamp: float, *values: float) -> bool:
+        check_clock()
+        return self.guard.check(what, stamp, rospy.get_time(), *values)
+
     # --------------------------------------------------------------- inputs
     def _on_state(self, m: VehicleState) -> None:
         t = m.header.stamp.to_sec()
+        if m.faults & VehicleState.FAULT_LINK:
+            self.guard.counts[("vehicle/state", "PLC link down")] += 1
+            return
+        if not self._accept("vehicle/state", t, m.wheel_speed, m.handlebar):
+            return
         with self.lock:
             M.add_state(self.loc, m)
             x, y, th = self.dr.add(t, m.wheel_speed, m.handlebar)
@@ -92,14 +115,24 @@ class LocalizationNode:
             self.tf.sendTransform(tr)
 
     def _on_imu(self, m: Imu) -> None:
+        a, w = m.linear_acceleration, m.angular_velocity
+        if not self._accept("imu/data", m.header.stamp.to_sec(), a.x, a.y, a.z, w.x, w.y, w.z):
+            return
         with self.lock:
             M.add_imu(self.loc, m)
 
     def _on_mag(self, m: MagneticField) -> None:
+        f = m.magnetic_field
+        if not self._accept("imu/mag", m.header.stamp.to_sec(), f.x, f.y, f.z):
+            return
         with self.lock:
             M.add_mag(self.loc, m)
 
     def _on_gps(self, m: NavSatFix) -> None:
+        if m.status.status >= 0 and not self._accept("gps/fix", m.header.stamp.to_sec(), m.latitude, m.longitude):
+            return
+        if m.status.status < 0 and not self._accept("gps/fix", m.header.stamp.to_sec()):
+            return
         with self.lock:
             M.add_gps(self.loc, m)
 
@@ -112,7 +145,7 @@ class LocalizationNode:
                 est = self.loc.update(now)
             except RuntimeError as exc:  # a numerically failed update must not end localization
                 rospy.logerr_throttle(5.0, "smoother update failed (%s); restarting from the next fix", exc)
-                self.loc = Localizer(self.p, vehicle_params(), site_params())
+                self.loc = Localizer(self.p, self.vehicle, self.site)
                 return
             sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.np.calibration_period else None
         self.update_ms.append((time.perf_counter() - w0) * 1e3)
@@ -171,6 +204,8 @@ class LocalizationNode:
                            ("intervals without odometry", c.intervals_without_odometry),
                            ("intervals without gyro", c.intervals_without_gyro),
                            ("bad or out-of-order inputs", c.bad_input + c.out_of_order),
+                           ("inputs rejected by the node", self.guard.summary()),
+                           ("restarts after the clock moved back", self.resets),
                            ("update p50 [ms]", f"{ups[len(ups) // 2]:.2f}"),
                            ("update p99 [ms]", f"{ups[min(len(ups) - 1, int(0.99 * len(ups)))]:.2f}")):
             stat.add(key, str(value))

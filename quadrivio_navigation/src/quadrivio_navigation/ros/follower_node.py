@@ -14,6 +14,12 @@ goal fails, the vehicle stops on its current path), ``localization/predicted``
 (nav_msgs/Odometry).
 Publishes: ``vehicle/setpoint/auto`` (quadrivio_plc/Setpoint) and ``follower/status``
 (quadrivio_navigation/FollowerStatus) at ``~rate`` once a path and a pose exist.
+
+A pose with a non-finite value or a stamp ahead of the clock is dropped (and counted in
+``/diagnostics``): the last good pose ages and the follower stops on it, as it does when
+poses stop coming. A path with a non-finite pose is refused. When the clock moves back
+(the simulator's ``~reset``), the pose is forgotten and the current path is followed
+again from its start.
 """
 
 from __future__ import annotations
@@ -24,11 +30,13 @@ from typing import Optional
 
 import numpy as np
 import rospy
+from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_updater import Updater
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
-from quadrivio_description.ros.timer import guarded_timer, publish
+from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint
 
 from ..follower import ABORTED, FOLLOWING, STATUS_NAMES, FollowerConfig, PurePursuit, make_route
@@ -42,6 +50,8 @@ class FollowerNode:
         self.vehicle = vehicle_params()
         self.lock = threading.Lock()
         self.pp: Optional[PurePursuit] = None
+        self.route = None
+        self.guard = input_guard()
         self.pose: Optional[Odometry] = None
         self.last_status = None
         self.pub_sp = rospy.Publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
@@ -50,6 +60,30 @@ class FollowerNode:
         rospy.Subscriber("planner/status", PlannerStatus, self._on_planner, queue_size=5)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         guarded_timer(1.0 / self.p.rate, self._tick, "follower cycle")
+        on_clock_jump(self._on_clock_jump)
+        self.diag = Updater()
+        self.diag.setHardwareID("follower")
+        self.diag.add("follower", self._diagnose)
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
+
+    def _on_clock_jump(self, _before: float, _now: float) -> None:
+        with self.lock:
+            self.pose = None
+            if self.route is not None:
+                self.pp = PurePursuit(self.p.pure_pursuit, self.route, self.vehicle, 0.0, 0.0, None)
+                self.pp.set_limits(self.p.profile.accel, self.p.profile.decel)
+                self.last_status = None
+
+    def _diagnose(self, stat):
+        with self.lock:
+            pp = self.pp
+        if pp is None:
+            stat.summary(DiagnosticStatus.OK, "no path")
+        else:
+            level = DiagnosticStatus.WARN if pp.status == ABORTED else DiagnosticStatus.OK
+            stat.summary(level, STATUS_NAMES[pp.status])
+        stat.add("inputs rejected", self.guard.summary())
+        return stat
 
     def _on_path(self, m: PathMsg) -> None:
         with self.lock:
@@ -61,6 +95,11 @@ class FollowerNode:
                 rospy.logwarn("empty path received: stopping")
             return
         poses = np.array([(ps.pose.position.x, ps.pose.position.y, yaw_of(ps.pose.orientation)) for ps in m.poses])
+        if not np.all(np.isfinite(poses)):
+            bad = int(np.argmax(~np.all(np.isfinite(poses), axis=1)))
+            self.guard.reject("planner/path", "value not finite", f"pose {bad} of {len(poses)}")
+            rospy.logerr("ignored a path of %d poses: pose %d is not finite", len(poses), bad)
+            return
         speed = pose.twist.twist.linear.x if pose is not None else 0.0
         if old is None or old.status != FOLLOWING or not math.isfinite(speed):
             speed = 0.0
@@ -76,6 +115,7 @@ class FollowerNode:
             last_sp = (old.sp_speed, old.sp_handlebar, old.t_last) if old is not None and old.status == FOLLOWING else \
                 (0.0, 0.0, None)
             self.pp = PurePursuit(pp_params, route, self.vehicle, *last_sp)
+            self.route = route
             self.pp.set_limits(self.p.profile.accel, self.p.profile.decel)
             self.last_status = None
         cusps = len(route.segments) - 1
@@ -91,6 +131,12 @@ class FollowerNode:
                 rospy.logwarn("planning for the new goal failed: stopping (%s)", m.reason)
 
     def _on_pose(self, m: Odometry) -> None:
+        check_clock()
+        p = m.pose.pose.position
+        q = m.pose.pose.orientation
+        if not self.guard.check("localization/predicted", m.header.stamp.to_sec(), rospy.get_time(),
+                                p.x, p.y, q.x, q.y, q.z, q.w, m.twist.twist.linear.x):
+            return
         with self.lock:
             self.pose = m
 

@@ -36,6 +36,7 @@ def to_msg(points: np.ndarray, frame_id: str, stamp: rospy.Time) -> PathMsg:
 class PathPublisher:
     def __init__(self) -> None:
         self.p: PathParams = with_scenario(node_params(PathParams), "path")
+        self.failed = False
         if self.p.kind == "waypoints" and not self.p.waypoints:
             fatal("bad parameter: path kind 'waypoints' needs at least one waypoint")
         if self.p.kind == "goal":
@@ -46,6 +47,10 @@ class PathPublisher:
         rospy.loginfo("path publisher: %s, waiting for the first localization estimate", self.p.kind)
 
     def _on_odom(self, m: Odometry) -> None:
+        p, q = m.pose.pose.position, m.pose.pose.orientation
+        if not all(map(math.isfinite, (p.x, p.y, q.x, q.y, q.z, q.w))):
+            rospy.logwarn_throttle(5.0, "path publisher: ignored a localization estimate that is not finite")
+            return
         self.sub.unregister()
         if self.p.kind == "goal":
             x, y, yaw = self.p.goal
@@ -60,6 +65,7 @@ class PathPublisher:
             pts = path_points(self.p.kind, start, self.p.figure_eight, waypoints, self.p.ds)
         except ValueError as exc:  # a callback cannot stop the node by raising: ask for shutdown
             rospy.logfatal("cannot build the path: %s", exc)
+            self.failed = True
             rospy.signal_shutdown(f"cannot build the path: {exc}")
             return
         self.pub.publish(to_msg(pts, self.p.frame_id, m.header.stamp))
@@ -70,5 +76,7 @@ class PathPublisher:
 
 def main() -> None:
     rospy.init_node("path_publisher")
-    PathPublisher()
+    node = PathPublisher()
     rospy.spin()
+    if node.failed:  # exit status 1, as fatal() gives outside a callback (required nodes end the launch)
+        raise SystemExit(1)

@@ -7,7 +7,9 @@ ask the PLC for SAFE, i.e. brake and hold, on a trip), ``~set_mode_service``
 Subscribes: ``imu/data`` (sensor_msgs/Imu), ``vehicle/state`` (quadrivio_plc/VehicleState:
 while tripped, a PLC found in a driving mode is sent back to SAFE, at most once a
 second). Publishes: ``safety/rollover`` (quadrivio_navigation/RolloverRisk) for every
-IMU sample, ``/diagnostics``.
+IMU sample, ``safety/interlock`` (quadrivio_plc/Interlock, latched: active while tripped
+and ``~stop_on_trip``, so that the PLCClient refuses driving modes at once), ``/diagnostics``.
+IMU samples with non-finite values or stamps ahead of the clock are dropped and counted.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from sensor_msgs.msg import Imu
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
-from quadrivio_description.ros.timer import guarded_timer, publish
+from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
 from ..msg import RolloverRisk
 from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams
@@ -44,7 +46,14 @@ class RolloverNode:
         self.ssf = vehicle.static_stability_factor
         self.mount = vehicle.sensors["imu_link"].rpy
         self.monitor = RolloverMonitor(self.p, self.ssf)
+        self.guard = input_guard()
         self.pub = rospy.Publisher("safety/rollover", RolloverRisk, queue_size=20)
+        self.pub_interlock = None
+        if self.np.stop_on_trip:
+            from quadrivio_plc.msg import Interlock
+
+            self.pub_interlock = rospy.Publisher("safety/interlock", Interlock, queue_size=5, latch=True)
+            self._interlock(False, "no roll-over risk")
         self.last = None
         self.level = OK
         self.stopping = threading.Lock()
@@ -58,11 +67,30 @@ class RolloverNode:
 
             rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=5)
         self.last_request = -1e9
+        on_clock_jump(self._on_clock_jump)
         rospy.loginfo("roll-over monitor: static stability factor %.2f, warn at %.0f %%, trip at %.0f %%",
                       self.ssf, 100 * self.p.warn_ratio, 100 * self.p.trip_ratio)
 
+    def _on_clock_jump(self, _before: float, _now: float) -> None:
+        self.monitor = RolloverMonitor(self.p, self.ssf)
+        self.last_request = -1e9
+        self.level, self.last = OK, None
+        if self.pub_interlock is not None:
+            self._interlock(False, "clock moved back: monitor restarted")
+
+    def _interlock(self, active: bool, reason: str) -> None:
+        from quadrivio_plc.msg import Interlock
+
+        m = Interlock()
+        m.header.stamp = rospy.Time.now()
+        m.source, m.active, m.reason = rospy.get_name(), active, reason
+        publish(self.pub_interlock, m)
+
     def _on_imu(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
+        check_clock()
+        if not self.guard.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z, w.x, w.y, w.z):
+            return
         f = rotate(self.mount, (a.x, a.y, a.z))
         g = rotate(self.mount, (w.x, w.y, w.z))
         s = self.monitor.update(m.header.stamp.to_sec(), f, g)
@@ -77,6 +105,9 @@ class RolloverNode:
             log = rospy.logerr if s.level == TRIP else rospy.logwarn if s.level > OK else rospy.loginfo
             log("roll-over risk %s: %.0f %% of tipping, roll %.1f deg", LEVEL_NAMES[s.level], 100 * s.risk,
                 s.roll * 57.29578)
+            if self.pub_interlock is not None and TRIP in (s.level, self.level):
+                self._interlock(s.level == TRIP, f"roll-over risk {LEVEL_NAMES[s.level]}: {100 * s.risk:.0f} % "
+                                                  f"of tipping, roll {s.roll * 57.29578:.1f} deg")
             if s.level == TRIP and self.np.stop_on_trip:
                 self._request_stop()
         self.level, self.last = s.level, s
@@ -119,6 +150,7 @@ class RolloverNode:
         stat.add("roll [deg]", f"{s.roll * 57.29578:.1f}")
         stat.add("lateral acceleration [m/s^2]", f"{s.lateral_accel:.2f}")
         stat.add("static stability factor", f"{self.ssf:.3f}")
+        stat.add("IMU samples rejected", self.guard.summary())
         return stat
 
 

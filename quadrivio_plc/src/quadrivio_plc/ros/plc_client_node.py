@@ -5,8 +5,13 @@ Parameters (private): ``~host`` (str, 127.0.0.1), ``~port`` (int, 5020), ``~send
 (s, 1), ``~reconnect_min`` / ``~reconnect_max`` (s, 0.1 / 5), ``~mode_timeout`` (s, 1),
 ``~frame_id`` (base_link), ``~initial_mode`` (str, "": request this mode once connected).
 
-Subscribes: ``vehicle/setpoint/auto``, ``vehicle/setpoint/manual`` (quadrivio_plc/Setpoint).
-Publishes: ``vehicle/state`` (quadrivio_plc/VehicleState) for every PLC state frame,
+``~key_file`` (str, "": $ROS_HOME/quadrivio_plc.key, the PLC's shared session key).
+
+Subscribes: ``vehicle/setpoint/auto``, ``vehicle/setpoint/manual`` (quadrivio_plc/Setpoint),
+``safety/interlock`` (quadrivio_plc/Interlock: while one is active, driving modes are
+refused and a driving PLC is sent to SAFE at once).
+Publishes: ``vehicle/state`` (quadrivio_plc/VehicleState) for every PLC state frame, and
+at 10 Hz with FAULT_LINK and NaN measurements while there is no session;
 ``/diagnostics`` (link health).
 Services: ``~set_mode`` (quadrivio_plc/SetMode).
 """
@@ -26,11 +31,11 @@ from diagnostic_updater import Updater
 
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import node_params, private_params, split_params
-from quadrivio_description.ros.timer import guarded_timer, publish
+from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
 from .. import protocol as P
 from ..client import Multiplexer, PlcClientParams, PlcLink
-from ..msg import Setpoint, VehicleState
+from ..msg import Interlock, Setpoint, VehicleState
 from ..srv import SetMode, SetModeResponse
 
 
@@ -38,6 +43,9 @@ from ..srv import SetMode, SetModeResponse
 class NodeParams:
     initial_mode: str = param("", choices=("", "HALT", "SAFE", "MANUAL", "ASSISTED", "AUTO"),
                               doc="mode to request once connected (empty: none)")
+
+
+DRIVING = (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO)
 
 
 class PlcClientNode:
@@ -50,12 +58,17 @@ class PlcClientNode:
         self.faults = 0
         self.rejected: Dict[int, int] = {}
         self.bad_input = 0
+        self.interlocks: Dict[str, str] = {}  # active interlocks: source -> reason
+        self.initial_sent = False
+        self.link_down_published = -1e9
         self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
         self.link = PlcLink(self.p.host, self.p.port, connect_timeout=self.p.connect_timeout,
                             reconnect_min=self.p.reconnect_min, reconnect_max=self.p.reconnect_max,
-                            on_state=self._on_state, on_ack=self._on_ack, on_event=self._log)
+                            on_state=self._on_state, on_ack=self._on_ack, on_event=self._log,
+                            key_file=self.p.key_file)
         rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO, queue_size=10)
         rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint, P.SOURCE_MANUAL, queue_size=10)
+        rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
         rospy.Service("~set_mode", SetMode, self._srv_set_mode)
         self.diag = Updater()
         self.diag.setHardwareID(f"PLC {self.p.host}:{self.p.port}")
@@ -64,7 +77,14 @@ class PlcClientNode:
         self.io.start()
         guarded_timer(1.0 / self.p.send_rate, self._tick, "setpoint cycle")
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
+        on_clock_jump(self._on_clock_jump)
+
+    def _on_clock_jump(self, _before: float, _now: float) -> None:
+        # Setpoints stamped before the jump are stale (the multiplexer sends stops); the
+        # simulator's PLC restarted in SAFE, so the initial mode is requested again.
+        self.mux = Multiplexer(self.p.setpoint_timeout, self.p.stop_brake)
         self.initial_sent = False
+        self.link_down_published = -1e9
 
     # -------------------------------------------------------------- link I/O
     def _io_loop(self) -> None:
@@ -84,6 +104,8 @@ class PlcClientNode:
     def _on_state(self, s: P.State) -> None:
         first = self.mode < 0
         self.mode, self.faults = s.mode, s.faults
+        if self.interlocks and s.mode in DRIVING:
+            self._stop_for_interlock()
         m = VehicleState()
         m.header.stamp = rospy.Time.now()
         m.header.frame_id = self.p.frame_id
@@ -115,26 +137,75 @@ class PlcClientNode:
                                    msg.handlebar, msg.brake)
             return
         now = rospy.get_time()
+        if self.interlocks:
+            return  # stops only (see _tick)
         self.mux.update(source, now, msg.speed, msg.handlebar, msg.brake)
-        if self.mux.accepts(self.mode, source):  # forward at once: no extra latency
-            for frame in self.mux.frames(self.mode, now):
+        mode = self.mode  # read once: the I/O thread changes it
+        if self.mux.accepts(mode, source):  # forward at once: no extra latency
+            for frame in self.mux.frames(mode, now):
                 if frame.source == source:  # type: ignore[union-attr]
                     self.link.send(frame)
 
     def _tick(self, _event) -> None:
         if not self.link.connected:
+            self._publish_link_down()
             return
-        for frame in self.mux.frames(self.mode, rospy.get_time()):
+        mode = self.mode  # read once: the I/O thread changes it
+        now = rospy.get_time()
+        if self.interlocks:
+            self.mux.latest = {src: None for src in self.mux.latest}  # stops, whatever arrives
+        for frame in self.mux.frames(mode, now):
             self.link.send(frame)
-        if self.mode in (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO):
+        if mode in DRIVING:
             for source, stale in self.mux.stale.items():
-                if stale and self.mux.accepts(self.mode, source):
+                if stale and self.mux.accepts(mode, source):
                     rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop",
-                                           P.SOURCE_NAMES[source], self.p.setpoint_timeout, P.mode_name(self.mode))
+                                           P.SOURCE_NAMES[source], self.p.setpoint_timeout, P.mode_name(mode))
+
+    def _publish_link_down(self) -> None:
+        """No session: say so on vehicle/state at 10 Hz (FAULT_LINK, measurements unknown)."""
+        now = rospy.get_time()
+        if 0.0 <= now - self.link_down_published < 0.1:
+            return
+        self.link_down_published = now
+        m = VehicleState()
+        m.header.stamp = rospy.Time.now()
+        m.header.frame_id = self.p.frame_id
+        m.wheel_speed = m.handlebar = m.throttle = m.brake = math.nan
+        m.setpoint_speed = m.setpoint_handlebar = math.nan
+        m.plc_time = math.nan
+        m.mode = max(self.mode, P.MODE_SAFE) if self.mode != P.MODE_HALT else P.MODE_HALT
+        m.faults = self.faults | P.FAULT_LINK
+        publish(self.pub_state, m)
+
+    # ------------------------------------------------------------ interlocks
+    def _on_interlock(self, msg: Interlock) -> None:
+        source = msg.source or msg._connection_header.get("callerid", "?")
+        if msg.active:
+            if source not in self.interlocks:
+                rospy.logwarn("interlock from %s: %s; driving modes refused", source, msg.reason)
+            self.interlocks[source] = msg.reason
+            if self.mode in DRIVING:
+                self._stop_for_interlock()
+        elif self.interlocks.pop(source, None) is not None:
+            rospy.loginfo("interlock from %s released%s", source,
+                          "" if self.interlocks else "; driving modes allowed again")
+
+    def _stop_for_interlock(self) -> None:
+        now = rospy.get_time()
+        if 0.0 <= now - getattr(self, "_interlock_stop", -1e9) < 0.2:
+            return
+        self._interlock_stop = now
+        threading.Thread(target=self._request_mode, args=(P.MODE_SAFE,), daemon=True).start()
 
     # ------------------------------------------------------------------ mode
     def _request_mode(self, mode: int):
         """Ask the PLC for ``mode``: (accepted, text, the PLC's mode after the request)."""
+        if mode in DRIVING and self.interlocks:
+            text = "; ".join(f"{src}: {why}" for src, why in self.interlocks.items())
+            msg = f"{P.mode_name(mode)} refused: interlock active ({text})"
+            rospy.logwarn(msg)
+            return False, msg, max(self.mode, 0)
         event = threading.Event()
         answer = []
         sent = self.link.send(P.ModeRequest(mode), on_ack=lambda ack: (answer.append(ack), event.set()))
@@ -164,6 +235,8 @@ class PlcClientNode:
         link, s = self.link, self.link.stats
         if not link.connected:
             stat.summary(DiagnosticStatus.ERROR, f"not connected: {link.last_error}")
+        elif self.interlocks:
+            stat.summary(DiagnosticStatus.WARN, f"interlocked: {'; '.join(self.interlocks.values())}")
         elif any(self.mux.stale[src] and self.mux.accepts(self.mode, src) for src in self.mux.stale):
             stat.summary(DiagnosticStatus.WARN, f"mode {P.mode_name(self.mode)}: setpoints stale, sending stops")
         else:
@@ -179,6 +252,8 @@ class PlcClientNode:
                            ("setpoints rejected by the PLC", str(self.rejected)),
                            ("bad setpoint messages dropped", str(self.bad_input)),
                            ("frames never acknowledged", str(s.unanswered)),
+                           ("frames the PLC found stale", str(s.stale_acks)),
+                           ("active interlocks", str(self.interlocks)),
                            ("connects", str(s.connects)), ("disconnects", str(s.disconnects))):
             stat.add(key, value)
         return stat

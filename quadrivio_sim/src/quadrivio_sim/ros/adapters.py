@@ -10,7 +10,11 @@ Common parameters (private, see ``config/<sensor>.yaml``): ``~frame_id``,
 ``~latency/delay``, ``~latency/jitter`` [s], the sensor's noise block, and the run's seed
 (``/run/seed`` or ``/scenario/seed``); a scenario's ``/scenario/sensors/<sensor>``
 overrides any of them. Delivery happens on a sim-time timer of period
-``~release_period`` (default 1 ms: every /clock tick).
+``~release_period`` (default 1 ms: every /clock tick). Readings with non-finite values
+(laser ranges excepted: inf and NaN are valid there, REP-117) or stamps ahead of the
+clock are dropped and counted; when the clock moves back (the simulator's ``~reset``)
+the readings waiting for their delivery time are dropped, not held until sim time
+passes their pre-reset stamps.
 
 Nodes: ``gps_adapter`` (/sim/gps -> gps/fix NavSatFix, gps/vel TwistStamped, optional
 NMEA on a pseudo-terminal or TCP), ``imu_adapter`` (/sim/imu -> imu/data Imu),
@@ -32,7 +36,7 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
 from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
-from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
@@ -47,15 +51,29 @@ def node_rng(seed: int) -> np.random.Generator:
 
 
 class DelayedOutput:
-    """Runs publish actions at their delivery time in sim time; never reorders them."""
+    """Runs publish actions at their delivery time in sim time; never reorders them.
+
+    ``accept(what, stamp, *values)`` is the adapter's input check (see module docstring)."""
 
     def __init__(self, latency: Latency, release_period: float) -> None:
         self.latency = latency
         self.queue: Deque[Tuple[float, Callable[[], None]]] = deque()
         self.lock = threading.Lock()
         self.delivered = 0
+        self.dropped_at_jumps = 0
+        self.guard = input_guard()
         if not latency.zero:
             guarded_timer(release_period, self._drain, "delayed delivery")
+        on_clock_jump(self._on_clock_jump)
+
+    def accept(self, what: str, stamp: float, *values: float) -> bool:
+        check_clock()
+        return self.guard.check(what, stamp, rospy.get_time(), *values)
+
+    def _on_clock_jump(self, _before: float, _now: float) -> None:
+        with self.lock:
+            self.dropped_at_jumps += len(self.queue)
+            self.queue.clear()
 
     def push(self, stamp: float, action: Callable[[], None]) -> None:
         if self.latency.zero:
@@ -106,6 +124,9 @@ class GpsAdapter:
 
     def _on_raw(self, m: RawGps) -> None:
         t = m.header.stamp.to_sec()
+        p, v = m.position, m.velocity
+        if not self.out.accept("/sim/gps", t, p.x, p.y, p.z, v.x, v.y, v.z):
+            return
         r = self.noise.apply(t, (m.position.x, m.position.y, m.position.z), (m.velocity.x, m.velocity.y, m.velocity.z))
         fix = NavSatFix()
         fix.header.stamp = m.header.stamp
@@ -148,6 +169,8 @@ class ImuAdapter:
 
     def _on_raw(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
+        if not self.out.accept("/sim/imu", m.header.stamp.to_sec(), a.x, a.y, a.z, w.x, w.y, w.z):
+            return
         f, g = self.noise.apply((a.x, a.y, a.z), (w.x, w.y, w.z))
         out = Imu()
         out.header.stamp = m.header.stamp
@@ -175,6 +198,8 @@ class MagAdapter:
 
     def _on_raw(self, m: MagneticField) -> None:
         h = m.magnetic_field
+        if not self.out.accept("/sim/mag", m.header.stamp.to_sec(), h.x, h.y, h.z):
+            return
         x, y, z = self.noise.apply((h.x, h.y, h.z))
         out = MagneticField()
         out.header.stamp = m.header.stamp
@@ -199,6 +224,8 @@ class LaserAdapter:
         rospy.Subscriber("scan_in", LaserScan, self._on_raw, queue_size=20)
 
     def _on_raw(self, m: LaserScan) -> None:
+        if not self.out.accept("scan_in", m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
+            return
         out = LaserScan()
         out.header.stamp = m.header.stamp
         out.header.frame_id = self.p.frame_id
@@ -228,6 +255,8 @@ class CameraAdapter:
         self.info = m
 
     def _on_image(self, m: Image) -> None:
+        if not self.out.accept("image_in", m.header.stamp.to_sec()):
+            return
         pixels = np.frombuffer(m.data, dtype=np.uint8).astype(np.float32)
         pixels += self.rng.normal(0.0, self.p.pixel_noise_std, pixels.shape).astype(np.float32)
         out = Image()

@@ -200,12 +200,20 @@ class SimNode:
         box = {}
 
         def job() -> None:
-            box["result"] = fn()
-            done.set()
+            # A failing job must fail its service call, never the simulation loop.
+            try:
+                box["result"] = fn()
+            except Exception as exc:  # noqa: BLE001
+                box["error"] = f"{type(exc).__name__}: {exc}"
+                rospy.logerr("simulator request failed: %s", box["error"])
+            finally:
+                done.set()
 
         self.requests.put(job)
         if not done.wait(timeout):
             raise rospy.ServiceException("the simulation loop did not answer")
+        if "error" in box:
+            raise rospy.ServiceException(box["error"])
         return box["result"]
 
     def _set_paused(self, paused: bool) -> TriggerResponse:
@@ -429,11 +437,17 @@ class SimNode:
         level = DiagnosticStatus.OK if self.server.connected else DiagnosticStatus.WARN
         stat.summary(level, f"{'client ' + self.server.peer if self.server.connected else 'no client'}, "
                             f"mode {P.mode_name(plc.mode)}")
+        st = self.server.stats
         stat.add("faults", str(plc.faults))
-        stat.add("frames received", str(self.server.decoder.stats.frames))
-        stat.add("bad frames", str(self.server.decoder.stats.bad_frames))
+        stat.add("sessions", str(st.sessions))
+        stat.add("frames received", str(st.frames))
+        stat.add("bad frames by reason", str(st.bad_frames))
+        stat.add("stale frames (sequence did not advance)", str(st.stale_frames))
         stat.add("frames sent", str(self.server.frames_sent))
-        stat.add("connections refused", str(self.server.refused))
+        stat.add("connections refused", str(st.refused))
+        stat.add("authentication failures", str(st.auth_failures))
+        stat.add("watchdog trips", str(plc.watchdog_trips))
+        stat.add("link losses", str(plc.link_losses))
         return stat
 
 
