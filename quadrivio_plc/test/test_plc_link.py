@@ -282,3 +282,29 @@ def test_a_flood_of_bad_frames_is_logged_once_a_second(plc):
         c.request(P.Heartbeat())
         wait(lambda: plc.server.stats.bad_frames.get("bad version", 0) == 6400)
     assert sum("rejected" in line for line in plc.log) <= 2
+
+
+def test_fuzzed_session_never_drives_and_survives(plc):
+    """20 000 chunks of every kind of bad input through an authenticated session: the PLC
+    stays in SAFE with nothing to drive on, every chunk is accounted for, and the session
+    still answers afterwards."""
+    import numpy as np
+
+    from quadrivio_plc.fuzz import KINDS, FrameFuzzer
+
+    with RawClient("127.0.0.1", plc.port) as c:
+        assert isinstance(c.authenticate(KEY), P.Ack)
+        fuzzer = FrameFuzzer(np.random.default_rng(3), first_seq=c.seq)
+        blob = b"".join(data for _, data in fuzzer.frames(20000))
+        c.send_raw(blob)
+        # The fuzz ended mid-frame, perhaps inside a long length field: a flush of zeros,
+        # then a valid frame numbered after everything the fuzzer numbered.
+        c.send_raw(bytes(P.MAX_FRAME))
+        c.seq = fuzzer.seq
+        ack = c.request(P.Heartbeat(), timeout=10.0)
+        assert ack is not None and ack.status == P.OK and ack.mode == P.MODE_SAFE
+    assert plc.logic.mode == P.MODE_SAFE and plc.logic.sp_speed == 0.0
+    assert set(fuzzer.counts) == set(KINDS)
+    st = plc.server.stats
+    assert st.stale_frames >= fuzzer.counts["replayed"] * 0.5
+    assert sum(st.bad_frames.values()) >= fuzzer.counts["bad checksum"] + fuzzer.counts["bad version"]

@@ -52,6 +52,9 @@ def test_watchdog_brakes_and_flags(plc):
     assert any("watchdog" in e for e in plc.pop_events())
     out = plc.cycle(0.5, 1.0, 3.0)
     assert out.brake > 0.0  # braking in SAFE
+    assert plc.request_mode(P.MODE_AUTO) == P.BAD_TRANSITION  # still moving: finish braking first
+    assert any("still moving" in e for e in plc.pop_events())
+    plc.cycle(0.6, 0.05, 0.1)
     assert plc.request_mode(P.MODE_AUTO) == P.OK
     assert not plc.faults & P.FAULT_WATCHDOG
 
@@ -166,6 +169,7 @@ def test_link_loss_brakes_and_is_reported(plc):
     assert plc.mode == P.MODE_SAFE and plc.faults & P.FAULT_LINK
     assert plc.sp_speed == 0.0 and plc.sp_brake == plc.p.hold_brake
     assert plc.cycle(0.06, 1.0, 3.0).brake >= 0.0 and plc.mode == P.MODE_SAFE
+    plc.cycle(0.9, 0.0, 0.0)
     assert plc.request_mode(P.MODE_AUTO, 1.0) == P.OK  # a new session's request clears it
     assert not plc.faults & P.FAULT_LINK
 

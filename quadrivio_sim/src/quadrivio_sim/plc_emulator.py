@@ -127,9 +127,18 @@ class PlcLogic:
             return P.Ack(seq, msg.TYPE, P.OK, self.mode)
         return None  # PLC-to-client messages coming back: ignored
 
+    STANDSTILL = 0.2  # [m/s] wheel speed below which a driving mode may be entered from SAFE
+
     def request_mode(self, mode: int, t: float = 0.0) -> int:
         if mode not in P.MODE_NAMES or mode not in ALLOWED[self.mode]:
             self.events.append(f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+            return P.BAD_TRANSITION
+        if mode in DRIVING and self.mode not in DRIVING and abs(self.control.speed_measured) > self.STANDSTILL:
+            # Braking after a stop, a watchdog trip or a lost link: finish braking first (a
+            # client re-requesting AUTO every cycle must not turn SAFE's full brake into a
+            # ramp to zero).
+            self.events.append(f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}: "
+                               f"vehicle still moving at {self.control.speed_measured:.2f} m/s")
             return P.BAD_TRANSITION
         if mode != self.mode:
             if mode in DRIVING and self.mode not in DRIVING:
