@@ -236,6 +236,7 @@ class _Conn:
     peer: str
     nonce: bytes
     opened: float  # wall time of accept
+    seq: int = 0  # sequence number of our next frame on this connection
     decoder: P.FrameDecoder = field(default_factory=P.FrameDecoder)
     out: bytearray = field(default_factory=bytearray)
     authed: bool = False
@@ -289,7 +290,6 @@ class PlcServer:
         self.sel.register(self.listener, selectors.EVENT_READ, None)
         self.session: Optional[_Conn] = None
         self.pending: Dict[socket.socket, _Conn] = {}
-        self.seq = 0
         self.frames_sent = 0
         self.stats = ServerStats()
         self._logged: Dict[str, float] = {}
@@ -364,7 +364,7 @@ class PlcServer:
         self.stats.refused += 1
         self._log_limited(f"refused {reason}", "warn", f"refused PLC connection from {conn.peer}: {why}")
         try:
-            conn.sock.send(P.encode(P.Refused(reason, why), self.seq))
+            conn.sock.send(P.encode(P.Refused(reason, why), conn.seq))
         except OSError:
             pass
         self._close(conn)
@@ -454,8 +454,8 @@ class PlcServer:
         return frames[1:]
 
     def _send(self, conn: _Conn, msg: P.Message) -> None:
-        conn.out += P.encode(msg, self.seq)
-        self.seq = (self.seq + 1) & 0xFFFF
+        conn.out += P.encode(msg, conn.seq)
+        conn.seq = (conn.seq + 1) & 0xFFFF
         self.frames_sent += 1
 
     def _flush(self, conn: _Conn) -> None:

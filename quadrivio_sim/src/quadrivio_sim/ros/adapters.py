@@ -13,8 +13,9 @@ overrides any of them. Delivery happens on a sim-time timer of period
 ``~release_period`` (default 1 ms: every /clock tick). Readings with non-finite values
 (laser ranges excepted: inf and NaN are valid there, REP-117) or stamps ahead of the
 clock are dropped and counted; when the clock moves back (the simulator's ``~reset``)
-the readings waiting for their delivery time are dropped, not held until sim time
-passes their pre-reset stamps.
+the readings waiting for their delivery time are dropped (not held until sim time
+passes their pre-reset stamps), and the noise and latency models start again from the
+run's seed, as at launch.
 
 Nodes: ``gps_adapter`` (/sim/gps -> gps/fix NavSatFix, gps/vel TwistStamped, optional
 NMEA on a pseudo-terminal or TCP), ``imu_adapter`` (/sim/imu -> imu/data Imu),
@@ -106,9 +107,7 @@ class GpsAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(GpsAdapterParams), "sensors/gps")
         site = site_params()
-        rng = node_rng(run_seed())
-        self.noise = GpsNoise(self.p.noise, rng)
-        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.out = DelayedOutput(self._build(), self.p.release_period)
         self.frame = site.local_frame()
         self.encoder = NmeaEncoder(self.frame, site.utc_epoch, self.p.nmea.geoid_separation, self.p.nmea.talker)
         try:
@@ -121,6 +120,15 @@ class GpsAdapter:
         self.pub_fix = rospy.Publisher("gps/fix", NavSatFix, queue_size=10) if self.p.publish_fix else None
         self.pub_vel = rospy.Publisher("gps/vel", TwistStamped, queue_size=10) if self.p.publish_fix else None
         rospy.Subscriber("/sim/gps", RawGps, self._on_raw, queue_size=100)
+        on_clock_jump(self._restart)
+
+    def _build(self) -> Latency:
+        rng = node_rng(run_seed())
+        self.noise = GpsNoise(self.p.noise, rng)
+        return Latency(self.p.latency, rng)
+
+    def _restart(self, _before: float, _now: float) -> None:
+        self.out.latency = self._build()
 
     def _on_raw(self, m: RawGps) -> None:
         t = m.header.stamp.to_sec()
@@ -161,11 +169,18 @@ class GpsAdapter:
 class ImuAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(ImuAdapterParams), "sensors/imu")
-        rng = node_rng(run_seed())
-        self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
-        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.out = DelayedOutput(self._build(), self.p.release_period)
         self.pub = rospy.Publisher("imu/data", Imu, queue_size=100)
         rospy.Subscriber("/sim/imu", Imu, self._on_raw, queue_size=200)
+        on_clock_jump(self._restart)
+
+    def _build(self) -> Latency:
+        rng = node_rng(run_seed())
+        self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
+        return Latency(self.p.latency, rng)
+
+    def _restart(self, _before: float, _now: float) -> None:
+        self.out.latency = self._build()
 
     def _on_raw(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
@@ -190,11 +205,18 @@ class ImuAdapter:
 class MagAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(MagAdapterParams), "sensors/mag")
-        rng = node_rng(run_seed())
-        self.noise = MagNoise(self.p.noise, rng)
-        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.out = DelayedOutput(self._build(), self.p.release_period)
         self.pub = rospy.Publisher("imu/mag", MagneticField, queue_size=50)
         rospy.Subscriber("/sim/mag", MagneticField, self._on_raw, queue_size=100)
+        on_clock_jump(self._restart)
+
+    def _build(self) -> Latency:
+        rng = node_rng(run_seed())
+        self.noise = MagNoise(self.p.noise, rng)
+        return Latency(self.p.latency, rng)
+
+    def _restart(self, _before: float, _now: float) -> None:
+        self.out.latency = self._build()
 
     def _on_raw(self, m: MagneticField) -> None:
         h = m.magnetic_field
@@ -217,11 +239,18 @@ class LaserAdapter:
     def __init__(self) -> None:
         name = rospy.get_name().rsplit("/", 1)[-1]
         self.p = with_scenario(node_params(LaserAdapterParams), f"sensors/{name}")
-        rng = node_rng(run_seed())
-        self.noise = LaserNoise(self.p.noise, rng)
-        self.out = DelayedOutput(Latency(self.p.latency, rng), self.p.release_period)
+        self.out = DelayedOutput(self._build(), self.p.release_period)
         self.pub = rospy.Publisher("scan", LaserScan, queue_size=10)
         rospy.Subscriber("scan_in", LaserScan, self._on_raw, queue_size=20)
+        on_clock_jump(self._restart)
+
+    def _build(self) -> Latency:
+        rng = node_rng(run_seed())
+        self.noise = LaserNoise(self.p.noise, rng)
+        return Latency(self.p.latency, rng)
+
+    def _restart(self, _before: float, _now: float) -> None:
+        self.out.latency = self._build()
 
     def _on_raw(self, m: LaserScan) -> None:
         if not self.out.accept("scan_in", m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
@@ -243,13 +272,20 @@ class CameraAdapter:
     def __init__(self) -> None:
         name = rospy.get_name().rsplit("/", 1)[-1]
         self.p = with_scenario(node_params(CameraAdapterParams), f"sensors/{name}")
-        self.rng = node_rng(run_seed())
-        self.out = DelayedOutput(Latency(self.p.latency, self.rng), self.p.release_period)
+        self.out = DelayedOutput(self._build(), self.p.release_period)
         self.info = None
         self.pub_image = rospy.Publisher("image_raw", Image, queue_size=2)
         self.pub_info = rospy.Publisher("camera_info", CameraInfo, queue_size=2)
         rospy.Subscriber("camera_info_in", CameraInfo, self._on_info, queue_size=2)
         rospy.Subscriber("image_in", Image, self._on_image, queue_size=2)
+        on_clock_jump(self._restart)
+
+    def _build(self) -> Latency:
+        self.rng = node_rng(run_seed())
+        return Latency(self.p.latency, self.rng)
+
+    def _restart(self, _before: float, _now: float) -> None:
+        self.out.latency = self._build()
 
     def _on_info(self, m: CameraInfo) -> None:
         self.info = m

@@ -268,7 +268,7 @@ class SimNode:
                 rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
                 self.paused = self.stopped = True
             drops = self.pacer.drops
-            self.server.poll(self.pacer.wait(self.sim.t, time.monotonic()))
+            self._poll_until(time.monotonic() + self.pacer.wait(self.sim.t, time.monotonic()))
             if self.pacer.drops != drops:
                 now = time.monotonic()
                 if now - self.behind_warned > 10.0:
@@ -284,6 +284,15 @@ class SimNode:
                 self.diag.update()
         self.server.close()
         self.sim.close()
+
+    def _poll_until(self, deadline: float) -> None:
+        """Serve the PLC port until the wall-clock ``deadline`` of the next step. A frame
+        (or a flood of them) ends a select early; the step must still wait its turn, or a
+        busy socket would run the simulation ahead of its real-time factor."""
+        while True:
+            self.server.poll(max(0.0, deadline - time.monotonic()))
+            if time.monotonic() >= deadline:
+                return
 
     def _drain_plc_events(self) -> None:
         for ev in self.sim.plc.pop_events():
