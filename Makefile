@@ -5,13 +5,14 @@ SHELL := /bin/bash
 ENV := source $(CURDIR)/env.sh
 RESULTS ?= results
 
-.PHONY: help setup demo test unit rostest bench lint clean
+.PHONY: help setup demo test unit rostest bench soak lint clean
 
 help:
 	@echo "make setup   system packages, Python venv, catkin workspace (idempotent)"
 	@echo "make demo    setup, then the figure-eight experiment in simulation (headless)"
 	@echo "make test    setup, then every unit test and every rostest (what CI runs)"
 	@echo "make bench   setup, then the benchmarks (JSON in bench/results/)"
+	@echo "make soak    setup, then the long fault-injection cases (bench/results/soak.json)"
 	@echo "make lint    catkin_lint and pyflakes"
 
 setup:
@@ -31,6 +32,9 @@ rostest: setup
 
 bench: setup
 	@$(ENV) && tools/run_bench.sh
+
+soak: setup
+	@$(ENV) && tools/run_soak.sh
 
 lint: setup
 	@$(ENV) && catkin_lint -W2 .ws/src && python3 -m pyflakes $$(git ls-files '*.py') $$(git ls-files '*/nodes/*' 'nodes/*')

@@ -144,7 +144,8 @@ def test_corrupt_bag(tmp_path, capsys):
     path = tmp_path / "corrupt.bag"
     path.write_bytes(b"#ROSBAG V2.0\n" + os.urandom(3000))
     assert main([str(path), "--out", str(tmp_path / "c")]) == 2
-    assert "not a readable bag" in capsys.readouterr().err or "corrupt" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "not a readable bag" in err or "corrupt" in err
 
 
 def test_config_file_for_topics(recording, tmp_path):
@@ -155,3 +156,21 @@ def test_config_file_for_topics(recording, tmp_path):
                                    "stamp": "bag"}))
     assert main([recording[0], "--out", str(tmp_path / "cfg"), "--config", str(cfg), "--replay",
                  "--loops", "handlebar"]) == 0
+
+
+def test_out_into_a_users_folder_replaces_only_its_own_files(recording, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("the user's notes")
+    (out / "calibration.json").write_text("{}")
+    assert main([recording[0], "--out", str(out), "--replay"] + ARGS) == 0
+    assert (out / "notes.txt").read_text() == "the user's notes"
+    assert json.loads((out / "calibration.json").read_text())["mode"] == "replay"
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temporary left behind
+
+
+def test_out_that_is_a_file_is_refused(recording, tmp_path, capsys):
+    out = tmp_path / "a_file"
+    out.write_text("x")
+    assert main([recording[0], "--out", str(out), "--replay"] + ARGS) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err and out.read_text() == "x"

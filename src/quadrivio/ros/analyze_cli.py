@@ -28,13 +28,21 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
     info = {}
     if os.path.isfile(info_path):
-        with open(info_path) as fh:
-            info = json.load(fh)
+        try:
+            with open(info_path) as fh:
+                info = json.load(fh)
+            if not isinstance(info, dict):
+                raise ValueError(f"a JSON {type(info).__name__}, not an object")
+        except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
+            raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
+                           f"move it away to analyze the bag alone") from exc
     m = M.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"))
     os.makedirs(out, exist_ok=True)
-    with open(os.path.join(out, "metrics.json"), "w") as fh:
+    tmp = os.path.join(out, ".metrics.json.tmp")
+    with open(tmp, "w") as fh:
         json.dump(m, fh, indent=2)
         fh.write("\n")
+    os.replace(tmp, os.path.join(out, "metrics.json"))  # never half-written
     title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
     made = all_plots(run, out, title)
     if not quiet:

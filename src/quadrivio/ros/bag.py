@@ -9,7 +9,7 @@ from typing import Dict, List
 import numpy as np
 
 from quadrivio_description.frames import yaw_from_quaternion
-from quadrivio_description.ros.bag import open_bag
+from quadrivio_description.ros.bag import open_bag, read_messages
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 
@@ -67,7 +67,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
     by_topic = {v: k for k, v in TOPICS.items()}
     with bag:
         try:
-            for topic, m, _ in bag.read_messages(topics=list(TOPICS.values())):
+            for topic, m, _ in read_messages(bag, path, list(TOPICS.values()), error=BagError):
                 kind = by_topic[topic]
                 if kind == "path":
                     path_poses = np.array([(p.pose.position.x, p.pose.position.y, _yaw(p.pose.orientation))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import json
+import math
 import os
 import shutil
 import signal
@@ -52,6 +53,8 @@ class Runner:
         self.status = None
         self.planner = None
         self.last_status_wall = None
+        self.wall0 = time.monotonic()  # the run's start once unpaused; until then, the command's
+        self.wall_duration = 0.0
 
     def log(self, text: str) -> None:
         print(f"[experiment {dt.datetime.now().strftime('%H:%M:%S')}] {text}", flush=True)
@@ -203,6 +206,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.seed is not None and args.seed < 0:
         print("experiment: --seed must be a non-negative integer", file=sys.stderr)
         return 2
+    if args.rtf is not None and not (math.isfinite(args.rtf) and args.rtf >= 0.0):
+        print(f"experiment: --rtf {args.rtf} must be a finite number >= 0 (0: as fast as possible)", file=sys.stderr)
+        return 2
+    if args.wall_timeout < 0.0 or not math.isfinite(args.wall_timeout):
+        print(f"experiment: --wall-timeout {args.wall_timeout} must be >= 0 (0: never)", file=sys.stderr)
+        return 2
     try:
         runner = Runner(args)
     except ConfigError as exc:
@@ -217,7 +226,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f"experiment: {exc}", file=sys.stderr)
         runner.stop()
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # also during start-up: the run is described, whatever was recorded is analysed
         outcome = "interrupted"
         runner.wall_duration = time.monotonic() - runner.wall0
     finally:
@@ -226,9 +235,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
-    with open(os.path.join(runner.out, "run_info.json"), "w") as fh:
+    tmp = os.path.join(runner.out, ".run_info.json.tmp")
+    with open(tmp, "w") as fh:
         json.dump(info, fh, indent=2)
         fh.write("\n")
+    os.replace(tmp, os.path.join(runner.out, "run_info.json"))
     try:
         m = analyze(os.path.join(runner.out, "run.bag"), runner.out)
     except BagError as exc:

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.ros.bag import open_bag
+from quadrivio_description.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -53,7 +53,7 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         bins: dict = {}
         topics = [mag_topic, imu_topic] + ([state_topic] if use_state else [])
         try:
-            for topic, msg, _ in bag.read_messages(topics=topics):
+            for topic, msg, _ in read_messages(bag, path, topics, error=MagCalibrationError):
                 try:
                     t = msg.header.stamp.to_sec()
                     if topic == state_topic:

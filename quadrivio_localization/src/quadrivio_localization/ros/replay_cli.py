@@ -31,7 +31,7 @@ from typing import Any, Dict, Iterator, List, Tuple
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.paths import package_dir as _package_dir
-from quadrivio_description.ros.bag import open_bag
+from quadrivio_description.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                             out.write("/localization/calibration", M.calibration(est, loc.calibration_sigma()), at)
                             counts["calibrations"] += 1
 
-                for topic, raw, t in bag.read_messages(raw=True):
+                for topic, raw, t in read_messages(bag, args.bag, raw=True, error=ReplayError):
                     now = t.to_sec()
                     write(ticker.until(now))
                     role = role_of.get(topic)

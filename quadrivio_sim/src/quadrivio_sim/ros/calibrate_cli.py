@@ -26,7 +26,6 @@ import dataclasses
 import datetime as dt
 import json
 import os
-import shutil
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, to_mapping
-from quadrivio_description.ros.bag import open_bag
+from quadrivio_description.ros.bag import open_bag, read_messages
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 
@@ -91,7 +90,7 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
         out: Dict[str, Dict[str, List[float]]] = {"setpoint": {}, "measurement": {}}
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
         try:
-            for topic, msg, t_bag in bag.read_messages(topics=list(by_topic)):
+            for topic, msg, t_bag in read_messages(bag, path, list(by_topic), error=CalibrationError):
                 role, ts = by_topic[topic]
                 rec = out[role]
                 header = getattr(msg, "header", None)
@@ -188,6 +187,8 @@ def _metrics_dict(m) -> Optional[Dict[str, float]]:
 
 def run(args) -> int:
     try:
+        if os.path.exists(args.out) and not os.path.isdir(args.out):
+            raise CalibrationError(f"--out {args.out} is a file, not a folder")
         spec = from_mapping(BagSpec, load_yaml(args.config), args.config) if args.config else BagSpec()
         spec = _apply_cli_topics(spec, args)
         base_file = args.actuators or package_file("config", "actuators.yaml")
@@ -254,9 +255,11 @@ def run(args) -> int:
                     yaml.safe_dump(to_mapping(result), fh, sort_keys=False)
             with open(os.path.join(tmp, "calibration.json"), "w") as fh:
                 json.dump(report, fh, indent=2)
-            if os.path.exists(args.out):
-                shutil.rmtree(args.out)
-            shutil.copytree(tmp, args.out)
+            # Into the output folder file by file, each replaced atomically: files of
+            # the folder that are not ours are left alone (it may be a user's folder).
+            os.makedirs(args.out, exist_ok=True)
+            for name in sorted(os.listdir(tmp)):
+                os.replace(os.path.join(tmp, name), os.path.join(args.out, name))
     except (CalibrationError, ConfigError) as exc:
         print(f"calibrate: {exc}", file=sys.stderr)
         print("calibrate: nothing written", file=sys.stderr)
@@ -302,7 +305,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     p = argparse.ArgumentParser(prog="calibrate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("bag", help="bag with setpoints and measured responses")
-    p.add_argument("--out", required=True, help="output folder (replaced)")
+    p.add_argument("--out", required=True, help="output folder: its actuators.yaml, calibration.json and plots are "
+                                                "replaced, nothing else in it is touched")
     p.add_argument("--replay", action="store_true", help="compare the simulator with the recording, no fitting")
     p.add_argument("--actuators", default="", help="actuator YAML to start from / replay (default: the package's)")
     p.add_argument("--loops", default="handlebar,speed", help="which loops: handlebar,speed")

@@ -1,0 +1,112 @@
+"""Every tool that reads a recording turns corrupt input into one clear line and writes
+nothing half-done: a damaged compressed chunk, a corrupt run_info.json, bad arguments."""
+
+import pytest
+import rosbag
+import rospy
+from nav_msgs.msg import Odometry
+from sensor_msgs.msg import Imu, MagneticField, NavSatFix
+
+from quadrivio.ros import analyze_cli, experiment_cli
+from quadrivio_localization.ros import calibrate_mag_cli, replay_cli
+from quadrivio_plc.msg import VehicleState
+from quadrivio_sim.ros import calibrate_cli
+
+
+def _recording(path, compression):
+    with rosbag.Bag(str(path), "w", compression=compression, chunk_threshold=4096) as bag:
+        for k in range(3000):
+            t = rospy.Time(1.0 + 0.01 * k)
+            imu = Imu()
+            imu.header.stamp = t
+            imu.linear_acceleration.z = 9.81
+            bag.write("/imu/data", imu, t)
+            st = VehicleState()
+            st.header.stamp, st.wheel_speed = t, 1.0
+            bag.write("/vehicle/state", st, t)
+            mag = MagneticField()
+            mag.header.stamp, mag.magnetic_field.x = t, 2e-5
+            bag.write("/imu/mag", mag, t)
+            gt = Odometry()
+            gt.header.stamp, gt.header.frame_id = t, "map"
+            gt.pose.pose.position.x = 0.01 * k
+            gt.pose.pose.orientation.w = 1.0
+            bag.write("/ground_truth/odom", gt, t)
+            if k % 20 == 0:
+                fix = NavSatFix()
+                fix.header.stamp, fix.latitude, fix.longitude = t, 45.478, 9.2276
+                bag.write("/gps/fix", fix, t)
+
+
+@pytest.fixture(scope="module", params=["lz4", "bz2"])
+def corrupt_bag(request, tmp_path_factory):
+    """A recording whose third chunk has damaged compressed data (its index is intact)."""
+    path = tmp_path_factory.mktemp("bags") / f"damaged_{request.param}.bag"
+    _recording(path, request.param)
+    with rosbag.Bag(str(path)) as bag:
+        pos = sorted(c.pos for c in bag._chunks)[2]
+    data = bytearray(path.read_bytes())
+    for k in range(pos + 120, pos + 160):  # past the chunk's header, inside its compressed data
+        data[k] ^= 0x5A
+    path.write_bytes(bytes(data))
+    with rosbag.Bag(str(path)) as bag, pytest.raises(Exception):  # what the tools must not show
+        for _ in bag.read_messages():
+            pass
+    return path
+
+
+def _one_clear_line(err):
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert lines and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_analyze(corrupt_bag, tmp_path, capsys):
+    out = tmp_path / "analysis"
+    assert analyze_cli.main([str(corrupt_bag), "--out", str(out)]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert str(corrupt_bag) in line and "corrupt data after t = " in line and "rosbag filter" in line
+    assert not out.exists()
+
+
+def test_replay(corrupt_bag, tmp_path, capsys):
+    out = tmp_path / "replayed.bag"
+    assert replay_cli.main([str(corrupt_bag), "--out", str(out), "--quiet"]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert "corrupt data after t = " in line
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".replay")]
+
+
+def test_calibrate(corrupt_bag, tmp_path, capsys):
+    out = tmp_path / "cal"
+    args = ["--setpoint-topic", "/vehicle/state", "--measurement-topic", "/vehicle/state", "--stamp", "header"]
+    assert calibrate_cli.main([str(corrupt_bag), "--out", str(out)] + args) == 2
+    err = capsys.readouterr().err
+    assert "corrupt data after t = " in _one_clear_line(err) and not out.exists()
+
+
+def test_calibrate_mag(corrupt_bag, tmp_path, capsys):
+    out = tmp_path / "mag.yaml"
+    assert calibrate_mag_cli.main([str(corrupt_bag), "--out", str(out)]) == 2
+    assert "corrupt data after t = " in _one_clear_line(capsys.readouterr().err)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("content", ["{not json", "[1, 2]", ""])
+def test_analyze_with_a_corrupt_run_info(tmp_path, capsys, content):
+    bag = tmp_path / "run.bag"
+    _recording(bag, "none")
+    (tmp_path / "run_info.json").write_text(content)
+    out = tmp_path / "analysis"
+    assert analyze_cli.main([str(bag), "--out", str(out)]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert "run_info.json" in line and "unreadable" in line and not out.exists()
+
+
+@pytest.mark.parametrize("args,what", [(["--rtf", "-1"], "--rtf -1.0"), (["--rtf", "nan"], "--rtf nan"),
+                                       (["--seed", "-3"], "--seed"), (["--wall-timeout", "-5"], "--wall-timeout")])
+def test_experiment_checks_its_arguments_before_launching(tmp_path, capsys, args, what):
+    out = tmp_path / "run"
+    assert experiment_cli.main(["figure_eight", "--out", str(out)] + args) == 2
+    assert what in _one_clear_line(capsys.readouterr().err)
+    assert not out.exists()  # nothing launched, nothing prepared

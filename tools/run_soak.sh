@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# The long cases of the fault-injection suite (issue 8), called by `make soak` with
+# env.sh sourced: test/faults.test with 10^5 fuzzed frames through a session, 25 000
+# chunks from stranger connections and SOAK_ROUNDS (default 5) rounds of every bad
+# sensor message in a seeded random order.
+# The measured figures go to bench/results/soak.json (written whole, or not at all).
+set -uo pipefail
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$ROOT"
+mkdir -p bench/results .setup/test-logs
+rounds=${SOAK_ROUNDS:-5}
+log=.setup/test-logs/soak.log
+out=bench/results/soak.json
+tmp=$(mktemp "$ROOT/bench/results/.soak.XXXXXX")
+start=$(date +%s)
+printf '[soak] fault injection: 25000 stranger chunks, 100000 session chunks, %s rounds of sensor faults (log: %s)\n' \
+  "$rounds" "$log"
+results=.setup/test-logs/results/soak
+rm -rf "$results"
+rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" results:="$tmp" > "$log" 2>&1
+grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"
+ok=$?
+if [ -s "$tmp" ]; then
+  python3 - "$tmp" "$out" "$(( $(date +%s) - start ))" "$ok" <<'PY'
+import json, os, platform, sys
+tmp, out, seconds, ok = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "0"
+r = json.load(open(tmp))
+r.update({"passed": ok, "wall_s": seconds, "machine": f"{platform.node()} {os.cpu_count()} cores"})
+json.dump(r, open(tmp, "w"), indent=1)
+os.replace(tmp, out)
+sf = r.get("session_fuzz", {})
+st = r.get("stranger", {})
+print(f"[soak] stranger connections {st.get('connections')} refused {st.get('refused')} served {st.get('served')}; "
+      f"/clock min {r.get('stranger_clock_min_ratio')} of its rate")
+print(f"[soak] session fuzz {sf.get('chunks')} chunks in {sf.get('wall_s', float('nan')):.2f} s, modes seen "
+      f"{sf.get('modes_seen')}; /clock min {r.get('session_fuzz_clock_min_ratio')} of its rate")
+print(f"[soak] frozen client: standstill {r.get('frozen_client', {}).get('standstill_after_s')} s after the freeze; "
+      f"sensor faults: worst recovery {r.get('sensor_faults_worst_recovery_s')} s; after ~reset: localization "
+      f"{r.get('reset_loc_median_m')} m")
+PY
+fi
+rm -f "$tmp"
+if [ "$ok" -ne 0 ]; then
+  python3 tools/junit_failures.py "$results" | sed 's/^/    /'
+  echo "[soak] FAILED (log: $log)"
+  exit 1
+fi
+echo "[soak] passed in $(( $(date +%s) - start )) s; figures in $out"
