@@ -5,12 +5,13 @@ SHELL := /bin/bash
 ENV := source $(CURDIR)/env.sh
 RESULTS ?= results
 
-.PHONY: help setup demo test unit rostest bench soak lint clean
+.PHONY: help setup demo test unit system rostest bench soak lint clean
 
 help:
 	@echo "make setup   system packages, Python venv, catkin workspace (idempotent)"
 	@echo "make demo    setup, then the figure-eight experiment in simulation (headless)"
-	@echo "make test    setup, then every unit test and every rostest (what CI runs)"
+	@echo "make test    setup, then every unit test, system test and rostest (what CI runs)"
+	@echo "make unit    the pytest unit tests only (no ROS master); make system: the pytest system tests"
 	@echo "make bench   setup, then the benchmarks (JSON in bench/results/)"
 	@echo "make soak    setup, then the long fault-injection cases (bench/results/soak.json)"
 	@echo "make lint    catkin_lint and pyflakes"
@@ -26,6 +27,9 @@ test: setup
 
 unit: setup
 	@$(ENV) && tools/run_tests.sh unit
+
+system: setup
+	@$(ENV) && tools/run_tests.sh system
 
 rostest: setup
 	@$(ENV) && tools/run_tests.sh rostest

@@ -9,6 +9,8 @@ import rosbag
 
 from quadrivio.metrics import CONTRACT_KEYS, PLANNED_KEYS
 
+pytestmark = pytest.mark.system
+
 PLOTS = ("trajectory.png", "errors.png", "control.png", "calibration.png")
 
 

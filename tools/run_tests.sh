@@ -3,7 +3,9 @@
 # packages' test/ folders), one line of progress per rostest. Called by `make test`
 # with env.sh sourced.
 #
-#   tools/run_tests.sh [all|unit|rostest] [rostest name filter]
+#   tools/run_tests.sh [all|unit|system|rostest] [rostest name filter]
+# unit: pytest without the `system` marker (no ROS master); system: pytest tests that
+# launch the stack through the user's commands; all: both, then the rostests.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
@@ -14,9 +16,16 @@ mkdir -p "$LOGS"
 failed=()
 
 if [ "$mode" = all ] || [ "$mode" = unit ]; then
-  printf '\n[test] unit tests (pytest)\n'
-  if ! python3 -m pytest -q; then
+  printf '\n[test] unit tests (pytest -m "not system")\n'
+  if ! python3 -m pytest -q -m "not system"; then
     failed+=("unit tests")
+  fi
+fi
+
+if [ "$mode" = all ] || [ "$mode" = system ]; then
+  printf '\n[test] system tests (pytest -m system: the stack through the user commands)\n'
+  if ! python3 -m pytest -q -m system; then
+    failed+=("system tests")
   fi
 fi
 

@@ -32,7 +32,8 @@ def resting_script(seconds):
 
 def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
         script=wandering_script):
-    """Returns (errors array of [t, position error, heading error, heading sigma], localizer, last estimate)."""
+    """Returns (errors array of [t, position error, heading error, heading sigma, error east, error north,
+    covariance xx, xy, yy], localizer, last estimate)."""
     v, site = load_vehicle(), load_site()
     frame = site.local_frame()
     sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -69,8 +70,10 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                 est = e
                 if gt is not None and abs(gt.stamp - e.stamp) < 1e-6:
                     yaw = quat_to_rpy(gt.orientation)[2]
+                    c = e.covariance
                     errors.append((e.stamp, math.hypot(e.x - gt.position[0], e.y - gt.position[1]),
                                    math.degrees(math.remainder(e.theta - yaw, 2 * math.pi)),
-                                   math.degrees(math.sqrt(e.covariance[2, 2]))))
+                                   math.degrees(math.sqrt(c[2, 2])), e.x - gt.position[0], e.y - gt.position[1],
+                                   c[0, 0], c[0, 1], c[1, 1]))
     sim.close()
     return np.array(errors), loc, est

@@ -93,3 +93,21 @@ def test_tilt_from_gravity():
     roll, pitch = 0.2, -0.1
     f = (-math.sin(pitch), math.cos(pitch) * math.sin(roll), math.cos(pitch) * math.cos(roll))
     assert tilt_from_gravity(f) == pytest.approx((roll, pitch))
+
+
+@pytest.mark.parametrize("bad", [(math.nan, 0.0, G), (0.0, math.inf, G), (0.0, 0.0, -math.inf)])
+def test_one_non_finite_sample_does_not_latch_a_trip(bad):
+    mon = RolloverMonitor(RolloverParams(), SSF)
+    settle(mon, (0.0, 0.0, G))
+    s = mon.update(3.0, bad, (0.0, 0.0, 0.0))
+    assert s.level == OK and math.isfinite(s.risk) and mon.rejected == 1
+    s = settle(mon, (0.0, 0.0, G), t0=3.01, seconds=0.5)
+    assert s.level == OK and s.risk == pytest.approx(0.0, abs=1e-9)
+
+
+def test_upside_down_trips_and_recovers_once_upright():
+    mon = RolloverMonitor(RolloverParams(), SSF)
+    assert settle(mon, (0.0, 0.0, -G), seconds=0.5).level == TRIP
+    p = RolloverParams()
+    s = settle(mon, (0.0, 0.0, G), t0=0.5, seconds=p.hold_time + 5.0)
+    assert s.level == OK and math.isfinite(s.risk)
