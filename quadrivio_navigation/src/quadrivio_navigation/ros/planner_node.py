@@ -40,7 +40,7 @@ from nav_msgs.msg import Path as PathMsg
 from quadrivio_description.config import ConfigError, param
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_description.ros.timer import publish
+from quadrivio_description.ros.timer import input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, load_map
 from ..msg import PlannerStatus
@@ -93,6 +93,7 @@ class PlannerNode:
         else:
             rospy.Subscriber("map", OccupancyGrid, self._on_map, queue_size=1)
         rospy.Subscriber("move_base_simple/goal", PoseStamped, self._on_goal, queue_size=5)
+        self.guard = input_guard()
         rospy.Subscriber("localization/odom", Odometry, self._on_odom, queue_size=1)
         rospy.Service("~plan", PlanPath, self._on_plan_service)
         self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
@@ -131,6 +132,10 @@ class PlannerNode:
         self.jobs.put(("map", grid))
 
     def _on_odom(self, m: Odometry) -> None:
+        p, q = m.pose.pose.position, m.pose.pose.orientation
+        if not self.guard.check("localization/odom", m.header.stamp.to_sec(), rospy.get_time(),
+                                p.x, p.y, q.x, q.y, q.z, q.w):
+            return  # the start stays the last good estimate
         self.start = m
         if self.status.state == PlannerStatus.IDLE and self.goal is not None and self.planner is not None:
             self.jobs.put(("goal", self.goal))
