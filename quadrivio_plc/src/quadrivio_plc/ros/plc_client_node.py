@@ -6,6 +6,8 @@ Parameters (private): ``~host`` (str, 127.0.0.1), ``~port`` (int, 5020), ``~send
 ``~frame_id`` (base_link), ``~initial_mode`` (str, "": request this mode once connected).
 
 ``~key_file`` (str, "": $ROS_HOME/quadrivio_plc.key, the PLC's shared session key).
+``~initial_mode`` is requested again after ROS time moves back (the simulator's ``~reset``
+restarts its PLC in SAFE).
 
 Subscribes: ``vehicle/setpoint/auto``, ``vehicle/setpoint/manual`` (quadrivio_plc/Setpoint),
 ``safety/interlock`` (quadrivio_plc/Interlock: while one is active, driving modes are

@@ -33,6 +33,8 @@ from typing import Callable, Deque, Tuple
 
 import numpy as np
 import rospy
+from diagnostic_msgs.msg import DiagnosticStatus
+from diagnostic_updater import Updater
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
@@ -66,6 +68,17 @@ class DelayedOutput:
         if not latency.zero:
             guarded_timer(release_period, self._drain, "delayed delivery")
         on_clock_jump(self._on_clock_jump)
+        self.diag = Updater()
+        self.diag.setHardwareID(rospy.get_name())
+        self.diag.add("sensor adapter", self._diagnose)
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
+
+    def _diagnose(self, stat):
+        level = DiagnosticStatus.WARN if self.guard.total else DiagnosticStatus.OK
+        stat.summary(level, f"{self.delivered} readings delivered, {self.guard.total} rejected")
+        stat.add("readings rejected", self.guard.summary())
+        stat.add("readings dropped when the clock moved back", str(self.dropped_at_jumps))
+        return stat
 
     def accept(self, what: str, stamp: float, *values: float) -> bool:
         check_clock()
