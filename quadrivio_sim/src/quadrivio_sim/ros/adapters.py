@@ -56,29 +56,27 @@ def node_rng(seed: int) -> np.random.Generator:
 class DelayedOutput:
     """Runs publish actions at their delivery time in sim time; never reorders them.
 
-    ``accept(what, stamp, *values)`` is the adapter's input check (see module docstring)."""
+    ``build()`` makes the adapter's noise models and returns its :class:`Latency`; it is
+    called at start and again, under the queue's lock, when the clock moves back, so that
+    a reading in flight across the jump can neither use the old latency nor queue a
+    pre-jump delivery time that would hold every later reading. ``accept(what, stamp,
+    *values)`` is the adapter's input check (see module docstring)."""
 
-    def __init__(self, latency: Latency, release_period: float) -> None:
-        self.latency = latency
+    def __init__(self, build: Callable[[], Latency], release_period: float) -> None:
+        self.build = build
+        self.latency = build()
         self.queue: Deque[Tuple[float, Callable[[], None]]] = deque()
         self.lock = threading.Lock()
         self.delivered = 0
         self.dropped_at_jumps = 0
         self.guard = input_guard()
-        if not latency.zero:
+        if not self.latency.zero:
             guarded_timer(release_period, self._drain, "delayed delivery")
         on_clock_jump(self._on_clock_jump)
         self.diag = Updater()
         self.diag.setHardwareID(rospy.get_name())
         self.diag.add("sensor adapter", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
-
-    def _diagnose(self, stat):
-        level = DiagnosticStatus.WARN if self.guard.total else DiagnosticStatus.OK
-        stat.summary(level, f"{self.delivered} readings delivered, {self.guard.total} rejected")
-        stat.add("readings rejected", self.guard.summary())
-        stat.add("readings dropped when the clock moved back", str(self.dropped_at_jumps))
-        return stat
 
     def accept(self, what: str, stamp: float, *values: float) -> bool:
         check_clock()
@@ -88,13 +86,17 @@ class DelayedOutput:
         with self.lock:
             self.dropped_at_jumps += len(self.queue)
             self.queue.clear()
+            self.latency = self.build()
 
     def push(self, stamp: float, action: Callable[[], None]) -> None:
-        if self.latency.zero:
-            action()
-            self.delivered += 1
-            return
         with self.lock:
+            if stamp > rospy.get_time() + self.guard.max_future:  # read before the clock moved back
+                self.dropped_at_jumps += 1
+                return
+            if self.latency.zero:
+                action()
+                self.delivered += 1
+                return
             self.queue.append((self.latency.deliver_at(stamp), action))
         self._drain(None)
 
@@ -108,6 +110,13 @@ class DelayedOutput:
                 action()
                 self.delivered += 1
 
+    def _diagnose(self, stat):
+        level = DiagnosticStatus.WARN if self.guard.total else DiagnosticStatus.OK
+        stat.summary(level, f"{self.delivered} readings delivered, {self.guard.total} rejected")
+        stat.add("readings rejected", self.guard.summary())
+        stat.add("readings dropped when the clock moved back", str(self.dropped_at_jumps))
+        return stat
+
 
 def _stamp(t: float) -> rospy.Time:
     return rospy.Time.from_sec(t)
@@ -120,7 +129,7 @@ class GpsAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(GpsAdapterParams), "sensors/gps")
         site = site_params()
-        self.out = DelayedOutput(self._build(), self.p.release_period)
+        self.out = DelayedOutput(self._build, self.p.release_period)
         self.frame = site.local_frame()
         self.encoder = NmeaEncoder(self.frame, site.utc_epoch, self.p.nmea.geoid_separation, self.p.nmea.talker)
         try:
@@ -133,15 +142,11 @@ class GpsAdapter:
         self.pub_fix = rospy.Publisher("gps/fix", NavSatFix, queue_size=10) if self.p.publish_fix else None
         self.pub_vel = rospy.Publisher("gps/vel", TwistStamped, queue_size=10) if self.p.publish_fix else None
         rospy.Subscriber("/sim/gps", RawGps, self._on_raw, queue_size=100)
-        on_clock_jump(self._restart)
 
     def _build(self) -> Latency:
         rng = node_rng(run_seed())
         self.noise = GpsNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
-
-    def _restart(self, _before: float, _now: float) -> None:
-        self.out.latency = self._build()
 
     def _on_raw(self, m: RawGps) -> None:
         t = m.header.stamp.to_sec()
@@ -182,18 +187,14 @@ class GpsAdapter:
 class ImuAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(ImuAdapterParams), "sensors/imu")
-        self.out = DelayedOutput(self._build(), self.p.release_period)
+        self.out = DelayedOutput(self._build, self.p.release_period)
         self.pub = rospy.Publisher("imu/data", Imu, queue_size=100)
         rospy.Subscriber("/sim/imu", Imu, self._on_raw, queue_size=200)
-        on_clock_jump(self._restart)
 
     def _build(self) -> Latency:
         rng = node_rng(run_seed())
         self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
         return Latency(self.p.latency, rng)
-
-    def _restart(self, _before: float, _now: float) -> None:
-        self.out.latency = self._build()
 
     def _on_raw(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
@@ -218,18 +219,14 @@ class ImuAdapter:
 class MagAdapter:
     def __init__(self) -> None:
         self.p = with_scenario(node_params(MagAdapterParams), "sensors/mag")
-        self.out = DelayedOutput(self._build(), self.p.release_period)
+        self.out = DelayedOutput(self._build, self.p.release_period)
         self.pub = rospy.Publisher("imu/mag", MagneticField, queue_size=50)
         rospy.Subscriber("/sim/mag", MagneticField, self._on_raw, queue_size=100)
-        on_clock_jump(self._restart)
 
     def _build(self) -> Latency:
         rng = node_rng(run_seed())
         self.noise = MagNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
-
-    def _restart(self, _before: float, _now: float) -> None:
-        self.out.latency = self._build()
 
     def _on_raw(self, m: MagneticField) -> None:
         h = m.magnetic_field
@@ -252,18 +249,14 @@ class LaserAdapter:
     def __init__(self) -> None:
         name = rospy.get_name().rsplit("/", 1)[-1]
         self.p = with_scenario(node_params(LaserAdapterParams), f"sensors/{name}")
-        self.out = DelayedOutput(self._build(), self.p.release_period)
+        self.out = DelayedOutput(self._build, self.p.release_period)
         self.pub = rospy.Publisher("scan", LaserScan, queue_size=10)
         rospy.Subscriber("scan_in", LaserScan, self._on_raw, queue_size=20)
-        on_clock_jump(self._restart)
 
     def _build(self) -> Latency:
         rng = node_rng(run_seed())
         self.noise = LaserNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
-
-    def _restart(self, _before: float, _now: float) -> None:
-        self.out.latency = self._build()
 
     def _on_raw(self, m: LaserScan) -> None:
         if not self.out.accept("scan_in", m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
@@ -285,20 +278,16 @@ class CameraAdapter:
     def __init__(self) -> None:
         name = rospy.get_name().rsplit("/", 1)[-1]
         self.p = with_scenario(node_params(CameraAdapterParams), f"sensors/{name}")
-        self.out = DelayedOutput(self._build(), self.p.release_period)
+        self.out = DelayedOutput(self._build, self.p.release_period)
         self.info = None
         self.pub_image = rospy.Publisher("image_raw", Image, queue_size=2)
         self.pub_info = rospy.Publisher("camera_info", CameraInfo, queue_size=2)
         rospy.Subscriber("camera_info_in", CameraInfo, self._on_info, queue_size=2)
         rospy.Subscriber("image_in", Image, self._on_image, queue_size=2)
-        on_clock_jump(self._restart)
 
     def _build(self) -> Latency:
         self.rng = node_rng(run_seed())
         return Latency(self.p.latency, self.rng)
-
-    def _restart(self, _before: float, _now: float) -> None:
-        self.out.latency = self._build()
 
     def _on_info(self, m: CameraInfo) -> None:
         self.info = m
