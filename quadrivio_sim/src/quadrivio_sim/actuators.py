@@ -224,13 +224,15 @@ class SpeedLoop:
         self.gear = 1
         self.ramp = self.ramp_free = self.overspeed = 0.0
 
-    def _free_ramp(self, sp: float) -> float:
-        d = sp - self.ramp_free
-        speeding_up = abs(sp) > abs(self.ramp_free) and sp * self.ramp_free >= 0.0
+    def _ramp_step(self, ramp: float, sp: float) -> float:
+        """The change of a ramp at ``ramp`` toward ``sp`` in one cycle, within the acceleration limits."""
+        d = sp - ramp
+        speeding_up = abs(sp) > abs(ramp) and sp * ramp >= 0.0
         limit = self.p.max_accel if speeding_up else self.p.max_decel
-        if limit > 0.0:
-            d = clamp(d, -limit * self.dt, limit * self.dt)
-        self.ramp_free += d
+        return clamp(d, -limit * self.dt, limit * self.dt) if limit > 0.0 else d
+
+    def _free_ramp(self, sp: float) -> float:
+        self.ramp_free += self._ramp_step(self.ramp_free, sp)
         return self.ramp_free
 
     def _runaway(self, target: float, speed: float) -> Tuple[float, bool]:
@@ -251,11 +253,7 @@ class SpeedLoop:
         follow it, e.g. while the parking brake releases); returns it and its rate [m/s^2]."""
         if self.p.ramp_band > 0.0:
             self.ramp = clamp(self.ramp, speed - self.p.ramp_band, speed + self.p.ramp_band)
-        d = sp - self.ramp
-        speeding_up = abs(sp) > abs(self.ramp) and sp * self.ramp >= 0.0
-        limit = self.p.max_accel if speeding_up else self.p.max_decel
-        if limit > 0.0:
-            d = clamp(d, -limit * self.dt, limit * self.dt)
+        d = self._ramp_step(self.ramp, sp)
         self.ramp += d
         return self.ramp, d / self.dt
 
