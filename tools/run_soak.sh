@@ -9,13 +9,13 @@ ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 mkdir -p bench/results .setup/test-logs
 rounds=${SOAK_ROUNDS:-3}
-log=.setup/test-logs/soak.log
+log="$ROOT/.setup/test-logs/soak.log"
 out=bench/results/soak.json
 tmp=$(mktemp "$ROOT/bench/results/.soak.XXXXXX")
 start=$(date +%s)
 printf '[soak] fault injection: 25000 stranger chunks, 100000 session chunks, %s rounds of sensor faults (log: %s)\n' \
   "$rounds" "$log"
-results=.setup/test-logs/results/soak
+results="$ROOT/.setup/test-logs/results/soak"  # absolute: the test node runs in $ROS_HOME
 rm -rf "$results"
 rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" results:="$tmp" time_limit:=3600 > "$log" 2>&1
 grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"
