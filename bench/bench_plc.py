@@ -69,7 +69,8 @@ def main():
         client = diag_values(next(s for n, s in latest.items() if n.endswith("PLC link")))
         server = diag_values(next(s for n, s in latest.items() if n.endswith("emulated PLC")))
     dropped = (int(client["lost frames"]) + int(client["frames never acknowledged"]) + int(client["bad frames"])
-               + int(server["bad frames"]) + int(client["disconnects"]))
+               + int(server["bad frames"]) + int(server["stale frames (sequence did not advance)"])
+               + int(client["disconnects"]))
     result = {
         "plc_rtt_p50_ms": float(client["rtt p50 [ms]"]),
         "plc_rtt_p99_ms": float(client["rtt p99 [ms]"]),

@@ -450,6 +450,7 @@ class SimNode:
         stat.add("faults", str(plc.faults))
         stat.add("sessions", str(st.sessions))
         stat.add("frames received", str(st.frames))
+        stat.add("bad frames", str(sum(st.bad_frames.values())))
         stat.add("bad frames by reason", str(st.bad_frames))
         stat.add("stale frames (sequence did not advance)", str(st.stale_frames))
         stat.add("frames sent", str(self.server.frames_sent))
