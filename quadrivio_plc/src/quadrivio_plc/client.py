@@ -134,7 +134,6 @@ class PlcLink:
         self.sock: Optional[socket.socket] = None
         self.session = False  # the PLC accepted our AUTH: frames may be sent
         self._key = b""
-        self.auth_seq = -1
         self.opened = 0.0  # clock at TCP connect (HELLO and AUTH must complete within connect_timeout)
         self.lock = threading.Lock()  # socket, out buffer, sequence numbers, sent times
         self.out = bytearray()
@@ -197,7 +196,6 @@ class PlcLink:
             seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFF
             self.out += P.encode(P.Auth(P.auth_mac(self._key, hello.nonce)), seq)
-            self.auth_seq = seq
             error = self._flush_locked()
         if error:
             self._drop(error)
