@@ -138,6 +138,10 @@ class LocalizerParams:
     lag: float = param(3.0, lo=0.2, hi=60.0, unit="s", doc="smoother window")
     max_wait: float = param(0.25, lo=0.0, hi=5.0, unit="s",
                             doc="create a keyframe this long after its time even if a sensor has not covered it")
+    odometry_hold: float = param(0.2, lo=0.0, hi=5.0, unit="s",
+                                 doc="the last wheel speed and handlebar stand for at most this long after their "
+                                     "stamp; beyond, an interval has no odometry (a silent PLC link is not a vehicle "
+                                     "driving on at its last speed)")
     use_gps: bool = param(True)
     use_mag: bool = param(True)
     use_gyro: bool = param(True)
@@ -278,7 +282,10 @@ class Localizer:
         return k * self.dt
 
     def _samples(self, t0: float, t1: float) -> List[Tuple[float, float, float]]:
-        """Piecewise-constant ``(dt, speed, handlebar)`` over ``[t0, t1]`` from the states."""
+        """Piecewise-constant ``(dt, speed, handlebar)`` over ``[t0, t1]`` from the states;
+        none when ``t1`` is more than ``odometry_hold`` past the newest state."""
+        if not self.states or t1 > self.states[-1][0] + self.p.odometry_hold + 1e-9:
+            return []
         times = [s[0] for s in self.states]
         i = bisect.bisect_right(times, t0) - 1
         if i < 0:
