@@ -191,3 +191,44 @@ def mag_heading(m: Sequence[float], calib: Sequence[float], h_en: Sequence[float
     b = np.linalg.solve(np.array([[sx, sxy], [sxy, sy]]), np.asarray(m, float) - np.array([ox, oy]))
     # b = R(theta)^T h  ->  theta = angle(h) - angle(b)
     return wrap(math.atan2(h_en[1], h_en[0]) - math.atan2(b[1], b[0]))
+
+
+def gauss_markov_factor(noise, k0: int, k1: int, phi: float) -> gtsam.CustomFactor:
+    """First-order Gauss-Markov step between vector variables: ``e = x1 - phi x0`` (with
+    ``noise`` of std ``s sqrt(1 - phi^2)`` for a process of stationary std ``s``). Unlike a
+    random walk, it pulls back to zero: a drift that is stationary stays bounded, and so
+    does what it can hide."""
+
+    def error(this, values, H):
+        x0, x1 = values.atVector(this.keys()[0]), values.atVector(this.keys()[1])
+        if H is not None:
+            n = len(x0)
+            H[0] = -phi * np.eye(n)
+            H[1] = np.eye(n)
+        return x1 - phi * x0
+
+    return gtsam.CustomFactor(noise, [k0, k1], error)
+
+
+def constant_velocity_factor(noise, k0: int, k1: int, k2: int) -> gtsam.CustomFactor:
+    """Without odometry, the vehicle keeps its motion: the translation of interval (k1, k2),
+    in the body frame at k1, equals that of (k0, k1) in the body frame at k0, to within the
+    noise (a random acceleration). Only the translation: the gyro says how the heading turns."""
+
+    def error(this, values, H):
+        x0, x1, x2 = (values.atPose2(k) for k in this.keys())
+        J01a, J01b, J12a, J12b = (np.zeros((3, 3), order="F") for _ in range(4))
+        d01 = x0.between(x1, J01a, J01b)
+        d12 = x1.between(x2, J12a, J12b)
+        e = np.array([d12.x() - d01.x(), d12.y() - d01.y()])
+        if H is not None:
+            # between()'s Jacobians are in the result's tangent space, whose translation part
+            # moves the translation along the result's rotation.
+            T01 = np.hstack([d01.rotation().matrix(), np.zeros((2, 1))])
+            T12 = np.hstack([d12.rotation().matrix(), np.zeros((2, 1))])
+            H[0] = -T01 @ J01a
+            H[1] = T12 @ J12a - T01 @ J01b
+            H[2] = T12 @ J12b
+        return e
+
+    return gtsam.CustomFactor(noise, [k0, k1, k2], error)

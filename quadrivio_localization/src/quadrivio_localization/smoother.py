@@ -24,15 +24,10 @@ marginalised at slightly different linearisation points, dragged the heading by 
 degrees in 5 s while the reported sigma shrank to 9 degrees. The odometry factor's
 position error is in map axes for the same reason (see factors.odometry_factor).
 
-Outlier handling: GPS factors have a Huber kernel, and a fix whose innovation is
-implausible against the current estimate (squared Mahalanobis distance above
-``noise.gps_gate`` once the estimate has settled) is rejected and counted, so
-multipath bursts do not drag the estimate; after ``5`` s of rejections in a row the
-gate yields, so a genuinely lost estimate re-converges. Smaller bursts (a metre, within
-the gate) are caught as jumps: a fix that moves more than the vehicle did since the
-previous one starts a suspected burst, which ends when the fix jumps back
-(see Localizer._jumped). Every factor's model is in
-:mod:`quadrivio_localization.factors`.
+Outliers and multipath: GPS factors have a Huber kernel, and :mod:`.gps_gate` decides
+which fixes are used at all, by tests scaled by the fix's reported covariance and status
+and by the estimate's own covariance (nothing in metres); every fix not used is counted
+by reason. Every factor's model is in :mod:`quadrivio_localization.factors`.
 """
 
 from __future__ import annotations
@@ -51,6 +46,7 @@ from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 
 from . import factors as F
+from .gps_gate import NO_FIX, NOT_FINITE, TOO_OLD, GpsGate, GpsGateParams
 from .leveling import Leveller, lowpass
 
 X = gtsam.symbol_shorthand.X  # poses
@@ -80,18 +76,15 @@ class NoiseParams:
     gps_drift_tau: float = param(120.0, lo=1.0, hi=1e5, unit="s", doc="correlation time of the receiver's drift")
     gps_default: float = param(3.0, lo=1e-3, hi=1000.0, unit="m", doc="GPS standard deviation when the fix has none")
     gps_huber: float = param(1.5, lo=0.1, hi=100.0, doc="Huber threshold of the GPS factors [sigma]")
-    gps_gate: float = param(30.0, lo=1.0, hi=1e6, doc="reject a fix with a larger squared Mahalanobis innovation")
-    gps_jump: float = param(0.5, lo=0.01, hi=100.0, unit="m",
-                            doc="a fix that moved this much more than the vehicle since the previous fix (<= 2 s "
-                                "before) starts a suspected multipath burst (0 disables: use a huge value)")
-    gps_jump_yield: float = param(30.0, lo=0.0, hi=1e4, unit="s",
-                                  doc="accept the fixes again after this long in a suspected burst")
     mag: float = param(1.5, lo=1e-3, hi=100.0, unit="uT",
                        doc="magnetometer model error of a slot's mean reading, horizontal (correlated over a slot)")
     mag_white: float = param(0.3, lo=0.0, hi=100.0, unit="uT", doc="magnetometer white noise per reading")
     mag_huber: float = param(2.0, lo=0.1, hi=100.0, doc="Huber threshold of the magnetometer factors [sigma]")
     no_odometry: Tuple[float, float, float] = param((3.0, 3.0, 0.5), unit="m, m, rad",
                                                     doc="weak motion prior for an interval without odometry")
+    no_odometry_accel: float = param(3.0, lo=0.0, hi=100.0, unit="m/s^2",
+                                     doc="without odometry the vehicle keeps its velocity, give or take this "
+                                         "acceleration (0: no such factor)")
     kinematic_walk: Tuple[float, float, float] = param((2e-4, 2e-4, 4e-4), unit="1/sqrt(s), rad/sqrt(s), 1/sqrt(s)",
                                                        doc="random walk of k_v, h_0, k_d")
     mag_walk: Tuple[float, float, float, float, float] = param((0.02, 0.02, 5e-4, 5e-4, 5e-4),
@@ -146,6 +139,10 @@ class LocalizerParams:
     use_mag: bool = param(True)
     use_gyro: bool = param(True)
     use_odometry: bool = param(True)
+    wheel_check_rate: float = param(0.05, lo=0.0, hi=10.0, unit="rad/s",
+                                    doc="a wheel speed of 0 while the gyro's yaw rate is above this...")
+    wheel_check_time: float = param(0.5, lo=0.0, hi=60.0, unit="s",
+                                    doc="...for this long is a dead wheel-speed channel: odometry ignored (0: never)")
     mag_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="magnetometer factors per second (readings averaged)")
     calibrate: bool = param(True, doc="estimate the calibration online (false: hold the priors' means)")
     initial_heading_sigma: float = param(3.0, lo=1e-3, hi=4.0, unit="rad",
@@ -154,6 +151,7 @@ class LocalizerParams:
     tilt_tau: float = param(1.0, lo=0.0, hi=100.0, unit="s", doc="low-pass of roll/pitch from the accelerometer")
     altitude_tau: float = param(2.0, lo=0.0, hi=100.0, unit="s", doc="low-pass of the altitude from GPS")
     noise: NoiseParams = param(NoiseParams())
+    gps_gate: GpsGateParams = param(GpsGateParams(), doc="which GPS fixes are believed (outliers, multipath)")
     priors: CalibrationPriors = param(CalibrationPriors())
 
 
@@ -175,16 +173,12 @@ class Estimate:
 @dataclass
 class Counters:
     keyframes: int = 0
-    gps_used: int = 0
-    gps_rejected: int = 0
-    gps_jumps: int = 0  # suspected multipath bursts
-    gps_jump_rejected: int = 0  # fixes rejected inside them
-    gps_no_fix: int = 0
-    gps_too_old: int = 0
+    gps_used: int = 0  # (the fixes not used, by reason: Localizer.gate.counts)
     mag_used: int = 0
     mag_skipped_at_rest: int = 0
     intervals_without_odometry: int = 0
     intervals_without_gyro: int = 0
+    intervals_wheel_rejected: int = 0  # the wheel read 0 while the vehicle moved (Localizer.faults)
     out_of_order: int = 0
     bad_input: int = 0
     update_time: float = 0.0  # [s] wall time of the last smoother update (set by the caller)
@@ -197,7 +191,6 @@ def _finite(*values) -> bool:
 class Localizer:
     """Feed stamped sensor data with ``add_*`` in arrival order, call :meth:`update` at ``rate``."""
 
-    GATE_YIELD = 5.0  # [s] of consecutive rejections after which the GPS gate yields
     REST_SPEED = 0.05  # [m/s] wheel speed below which the vehicle stands still
 
     def __init__(self, p: LocalizerParams, vehicle: VehicleParams, site: SiteParams) -> None:
@@ -213,7 +206,12 @@ class Localizer:
         self.states: Deque[Tuple[float, float, float]] = deque(maxlen=20000)  # t, speed, handlebar
         self.gyro: Deque[Tuple[float, float]] = deque(maxlen=20000)  # t, vertical rate [rad/s]
         self.mags: Deque[Tuple[float, float, float]] = deque(maxlen=5000)  # t, levelled m_x, m_y [uT]
-        self.gps_pending: List[Tuple[float, np.ndarray, float, float]] = []  # t, enu, var_e, var_n
+        self.gps_pending: List[Tuple[float, np.ndarray, float, float, int]] = []  # t, enu, white var e, n, status
+        self.gate = GpsGate(p.gps_gate)
+        self.prev_fix: Optional[Tuple[float, np.ndarray, np.ndarray, np.ndarray]] = None  # t, fix, antenna, R
+        self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
+        self.wheel_fault_since: Optional[float] = None
+        self.events: List[str] = []  # for the node's log
         self.z: Optional[float] = None
         self.z_t: Optional[float] = None
         self.k: Optional[int] = None  # newest keyframe index
@@ -222,12 +220,6 @@ class Localizer:
         self.result = gtsam.Values()
         self.counters = Counters()
         self.cov = np.diag([1e4, 1e4, 10.0])
-        self.settled = False
-        self.last_accept = -math.inf
-        self.rejecting_since: Optional[float] = None
-        self.prev_fix: Optional[Tuple[float, np.ndarray, np.ndarray]] = None  # (t, fix, antenna estimate)
-        self.jump: Optional[np.ndarray] = None  # offset of the suspected multipath burst so far [m]
-        self.jump_since = -math.inf
         self.mag_at_rest = False  # a magnetometer factor already stands for the current stop
         self.latest_t = -math.inf  # newest sensor time seen
         self.latest_speed = 0.0  # [m/s] calibrated speed of the newest interval
@@ -264,18 +256,24 @@ class Localizer:
 
     def add_gps(self, t: float, lat: float, lon: float, alt: float, var_e: float, var_n: float, status: int) -> None:
         if status < 0:
-            self.counters.gps_no_fix += 1
+            self.gate.skip(NO_FIX)
             return
         if not _finite(t, lat, lon, alt):
             self.counters.bad_input += 1
+            self.gate.skip(NOT_FINITE)
             return
         enu = np.asarray(self.frame.lla_to_enu(lat, lon, alt))
         self.z = lowpass(self.z, float(enu[2]) - self.lever_z, self.z_t, t, self.p.altitude_tau)
         self.z_t = t
-        floor = self.p.noise.gps_floor ** 2
-        ve = var_e if _finite(var_e) and var_e > 0 else self.p.noise.gps_default ** 2
-        vn = var_n if _finite(var_n) and var_n > 0 else self.p.noise.gps_default ** 2
-        self.gps_pending.append((t, enu[:2], max(ve, floor), max(vn, floor)))
+        # The reported variance, or gps_default without one, is white noise plus the drift,
+        # which is a state: the factor keeps the white part, floored by what the fix's
+        # status can deliver (a plain FIX claiming centimetres is not believed).
+        default = self.p.noise.gps_default ** 2
+        floor = max(self.p.noise.gps_floor ** 2, self.p.gps_gate.status_floor(status))
+        d2 = self.p.noise.gps_drift ** 2
+        ve = var_e if _finite(var_e) and var_e > 0 else default
+        vn = var_n if _finite(var_n) and var_n > 0 else default
+        self.gps_pending.append((t, enu[:2], max(ve - d2, floor), max(vn - d2, floor), int(status)))
 
     # ---------------------------------------------------------------- helpers
     def _t(self, k: int) -> float:
@@ -341,7 +339,7 @@ class Localizer:
         """Start the graph at the first grid time after the first GPS fix."""
         if not self.gps_pending or (self.p.use_mag and not self.mags):
             return False
-        t_gps, z, ve, vn = self.gps_pending[0]
+        t_gps, z, ve, vn, _ = self.gps_pending[0]
         pr = self.p.priors
         kin_mean, kin_sigma = self._prior_vector((pr.wheel_speed_scale, pr.handlebar_offset, pr.steering_gain))
         mag_mean, mag_sigma = pr.magnetometer.vectors()
@@ -371,7 +369,7 @@ class Localizer:
         self.smoother = gtsam.IncrementalFixedLagSmoother(self.p.lag, params)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         heading_sigma = self.p.initial_heading_sigma if self.p.use_mag else math.pi
-        pos_sigma = math.sqrt(max(ve, vn)) + 0.5
+        pos_sigma = math.sqrt(max(ve, vn) + self.p.noise.gps_drift ** 2) + 0.5
         graph.add(gtsam.PriorFactorPose2(X(self.k), pose0,
                                          gtsam.noiseModel.Diagonal.Sigmas(np.array([pos_sigma, pos_sigma, heading_sigma]))))
         graph.add(gtsam.PriorFactorVector(B(self.k), np.array([pr.gyro_bias.mean]),
@@ -392,9 +390,11 @@ class Localizer:
         stamps = {X(self.k): t, B(self.k): t, K(self.k): t, M(self.k): t, G(self.k): t}
         self.kin_walk = np.asarray(self.p.noise.kinematic_walk) * math.sqrt(self.dt)
         self.mag_walk = np.asarray(self.p.noise.mag_walk) * math.sqrt(self.dt)
-        # Gauss-Markov drift of stationary std s and correlation time tau, as a random walk:
-        # its increments over dt have std s sqrt(2 dt / tau).
-        self.gps_walk = np.full(2, drift * math.sqrt(2.0 * self.dt / self.p.noise.gps_drift_tau))
+        # Gauss-Markov drift of stationary std s and correlation time tau: g1 = phi g0 + w,
+        # phi = exp(-dt / tau), w of std s sqrt(1 - phi^2). Mean-reverting: a random walk
+        # of the same increments lets a drift of a metre wander off unanchored in minutes.
+        self.gps_phi = math.exp(-self.dt / self.p.noise.gps_drift_tau)
+        self.gps_walk = np.full(2, drift * math.sqrt(1.0 - self.gps_phi ** 2))
         self.smoother.update(graph, values, stamps)
         self.result = self.smoother.calculateEstimate()
         return True
@@ -434,6 +434,10 @@ class Localizer:
         prev_b, kin, mag = self._vector(B(k0), values), self._vector(K(k0), values), self._vector(M(k0), values)
         drift = self._vector(G(k0), values)
         samples = self._samples(t0, t1) if self.p.use_odometry else []
+        dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
+        if samples and self._wheel_dead(t1, samples, dth_gyro, float(prev_b[0])):
+            samples = []  # a wheel that reads 0 while the vehicle turns says nothing true
+            self.counters.intervals_wheel_rejected += 1
         if samples:
             span = sum(dt for dt, _, _ in samples)
             speed = sum(dt * v for dt, v, _ in samples) / span
@@ -451,7 +455,14 @@ class Localizer:
             graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), gtsam.Pose2(),
                                                gtsam.noiseModel.Diagonal.Sigmas(np.array(nz.no_odometry))))
             guess = prev
-        dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
+            before = self._pose(k0 - 1, values) if k0 - 1 >= self.oldest_k else None
+            if before is not None and nz.no_odometry_accel > 0.0:
+                # Neither the wheel nor the handlebar: the vehicle keeps its motion, give or
+                # take a random acceleration (a braked vehicle stops within the GPS's reach).
+                sigma = nz.no_odometry_accel * self.dt * self.dt
+                graph.add(F.constant_velocity_factor(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
+                                                     X(k0 - 1), X(k0), X(k1)))
+                guess = prev.compose(before.between(prev))
         if dth_gyro is not None:
             graph.add(F.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
                                     X(k0), X(k1), B(k0), dth_gyro, self.dt))
@@ -460,7 +471,10 @@ class Localizer:
             self.counters.intervals_without_gyro += 1
         for key, value, sigmas in ((B, prev_b, [nz.gyro_bias_walk * math.sqrt(self.dt)]), (K, kin, self.kin_walk),
                                    (M, mag, self.mag_walk), (G, drift, self.gps_walk)):
-            if key in (B, G) or self.p.calibrate:
+            if key is G:
+                graph.add(F.gauss_markov_factor(gtsam.noiseModel.Diagonal.Sigmas(sigmas), G(k0), G(k1), self.gps_phi))
+                value = self.gps_phi * value
+            elif key is B or self.p.calibrate:
                 graph.add(gtsam.BetweenFactorVector(key(k0), key(k1), np.zeros(len(value)),
                                                     gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))))
             else:  # held: a tight prior on each copy (a chain of tight walks would be ill-conditioned)
@@ -473,6 +487,45 @@ class Localizer:
         self.k = k1
         self.counters.keyframes += 1
 
+    def _wheel_dead(self, t: float, samples, dth_gyro: Optional[float], bias: float) -> bool:
+        """Whether the wheel-speed channel reads 0 while the vehicle moves: the wheel says
+        standstill while the bias-corrected gyro says the vehicle turns faster than
+        ``wheel_check_rate`` for ``wheel_check_time`` s (an Ackermann vehicle cannot turn in
+        place). The fault holds while the wheel reads standstill; it is named in
+        :meth:`faults`."""
+        p = self.p
+        if max(abs(v) for _, v, _ in samples) >= self.REST_SPEED or p.wheel_check_time <= 0.0:
+            self.wheel_suspect = 0.0
+            if self.wheel_fault_since is not None:
+                self.events.append(f"wheel speed back at {t:.2f} s after "
+                                   f"{t - self.wheel_fault_since:.1f} s reading 0 while moving")
+            self.wheel_fault_since = None
+            return False
+        if self.wheel_fault_since is not None:
+            return True
+        if dth_gyro is not None and abs(dth_gyro / self.dt - bias) > p.wheel_check_rate:
+            self.wheel_suspect += self.dt
+        else:
+            self.wheel_suspect = 0.0
+        if self.wheel_suspect >= p.wheel_check_time - 1e-9:
+            self.wheel_fault_since = t
+            self.events.append(f"wheel speed reads 0 at {t:.2f} s while the gyro says the vehicle turns: "
+                               "odometry ignored until it reads motion again")
+            return True
+        return False
+
+    def faults(self) -> List[str]:
+        """The faults the smoother sees in its inputs now (for /diagnostics), empty when none."""
+        out = []
+        if self.wheel_fault_since is not None:
+            out.append(f"wheel speed reads 0 while the vehicle moves (since {self.wheel_fault_since:.1f} s): "
+                       "odometry ignored")
+        return out
+
+    def pop_events(self) -> List[str]:
+        ev, self.events = self.events, []
+        return ev
+
     def _pose(self, k: int, values: gtsam.Values) -> Optional[gtsam.Pose2]:
         """Current estimate of keyframe ``k``: from this update's new values or the solution."""
         if values.exists(X(k)):
@@ -480,91 +533,86 @@ class Localizer:
         return self.result.atPose2(X(k)) if self.result.exists(X(k)) else None
 
     def _add_gps(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        """Decide the pending fixes whose look-ahead group is in (see :mod:`.gps_gate`) and
+        add the accepted ones as factors on the keyframe of their measurement time."""
         if not self.p.use_gps:  # the first fix still places the start (see _initialize)
             self.gps_pending.clear()
             return
+        g = self.p.gps_gate
+        newest_fix = self.gps_pending[-1][0] if self.gps_pending else -math.inf
         keep = []
-        for t, z, ve, vn in self.gps_pending:
+        innovations: Dict[int, Optional[Tuple[np.ndarray, np.ndarray, gtsam.Pose2, np.ndarray]]] = {}
+
+        def innovation(i: int):
+            """(innovation, motion-corrected fix, keyframe pose, drift) of pending fix i, None before its keyframe."""
+            if i not in innovations:
+                t, z = self.gps_pending[i][0], self.gps_pending[i][1]
+                k = int(round(t / self.dt))
+                pose = self._pose(k, values) if self.oldest_k <= k <= self.k else None
+                if pose is None:
+                    innovations[i] = None
+                else:
+                    # Move the fix to the keyframe's time along the current motion (|dt| <= half a period).
+                    zc = z - self.latest_speed * (t - self._t(k)) * np.array([math.cos(pose.theta()),
+                                                                               math.sin(pose.theta())])
+                    drift = self._vector(G(k), values)
+                    innovations[i] = (zc - drift - F.gps_antenna(pose, self.lever), zc, pose, drift)
+            return innovations[i]
+
+        for i, (t, z, ve, vn, status) in enumerate(self.gps_pending):
             k = int(round(t / self.dt))
             if k > self.k:
-                keep.append((t, z, ve, vn))  # its keyframe does not exist yet
+                keep.append(self.gps_pending[i])  # its keyframe does not exist yet
                 continue
             if k < self.oldest_k:
-                self.counters.gps_too_old += 1
+                self.gate.skip(TOO_OLD)
                 continue
-            pose = self._pose(k, values)
-            if pose is None:
-                self.counters.gps_too_old += 1
+            # Wait for the group: a later fix beyond it, or group_wait of silence after it.
+            if g.group > 0.0 and newest_fix < t + g.group - 1e-9 and self.latest_t < t + g.group + g.group_wait:
+                keep.append(self.gps_pending[i])
                 continue
-            # Move the fix to the keyframe's time along the current motion (|dt| <= half a period).
-            dt = t - self._t(k)
-            zc = z - self.latest_speed * dt * np.array([math.cos(pose.theta()), math.sin(pose.theta())])
-            drift = self._vector(G(k), values)
-            if self._jumped(t, zc, pose):
-                self.counters.gps_jump_rejected += 1
-            elif self._gate(t, pose, zc - drift, ve, vn):
-                # The drift is a state: the factor keeps only the white part of the fix's variance.
-                floor, d2 = self.p.noise.gps_floor ** 2, self.p.noise.gps_drift ** 2
-                sigmas = np.sqrt([max(ve - d2, floor), max(vn - d2, floor)])
+            inn = innovation(i)
+            if inn is None:
+                self.gate.skip(TOO_OLD)
+                continue
+            nu, zc, pose, _ = inn
+            R = np.diag([ve, vn])
+            group = []
+            if g.group > 0.0:
+                for j in range(i + 1, len(self.gps_pending)):
+                    tj = self.gps_pending[j][0]
+                    if tj > t + g.group + 1e-9:
+                        break
+                    other = innovation(j)
+                    if other is not None:
+                        group.append((other[0], np.diag(self.gps_pending[j][2:4])))
+            antenna = zc - nu  # estimated antenna plus drift
+            step = None
+            if self.prev_fix is not None and self.prev_fix[0] < t:
+                t_p, z_p, a_p, R_p = self.prev_fix
+                n = (t - t_p) / self.dt
+                dist = abs(self.latest_speed) * (t - t_p)
+                Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
+                step = ((zc - z_p) - (antenna - a_p), R_p, R, Q)
+            self.prev_fix = (t, zc, antenna, R)
+            verdict = self.gate.decide(t, nu, self._antenna_cov(pose), R, group, step)
+            if verdict.use:
                 noise = gtsam.noiseModel.Robust.Create(
                     gtsam.noiseModel.mEstimator.Huber.Create(self.p.noise.gps_huber),
-                    gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+                    gtsam.noiseModel.Diagonal.Sigmas(np.sqrt([ve, vn])))
                 graph.add(F.gps_factor(noise, X(k), G(k), zc, self.lever))
                 self.counters.gps_used += 1
         self.gps_pending = keep
 
-    JUMP_WINDOW = 2.0  # [s] fixes further apart are not compared
-
-    def _jumped(self, t: float, z: np.ndarray, pose: gtsam.Pose2) -> bool:
-        """Whether the fix is inside a suspected multipath burst.
-
-        Multipath moves the fix by metres from one epoch to the next while the receiver
-        still claims a fix; the vehicle cannot. A fix that moved ``gps_jump`` more than
-        the estimated antenna did since the previous fix starts a burst; the burst's offset
-        is followed epoch to epoch and the burst ends when the fix jumps back (the offset
-        returns under half the threshold) or after ``gps_jump_yield`` s. An offset of a
-        metre is within the gate of a settled estimate (the Mahalanobis test alone took
-        such bursts in, and then refused the good fixes that came after them)."""
-        antenna = F.gps_antenna(pose, self.lever)
-        prev, self.prev_fix = self.prev_fix, (t, z, antenna)
-        step = None
-        if prev is not None and 0.0 < t - prev[0] <= self.JUMP_WINDOW:
-            step = (z - prev[1]) - (antenna - prev[2])
-        thr = self.p.noise.gps_jump
-        if self.jump is None:
-            if step is not None and self.settled and float(np.hypot(*step)) > thr:
-                self.jump, self.jump_since = step, t
-                self.counters.gps_jumps += 1
-                return True
-            return False
-        if step is not None:
-            self.jump = self.jump + step
-        if float(np.hypot(*self.jump)) < 0.5 * thr or t - self.jump_since > self.p.noise.gps_jump_yield:
-            self.jump = None
-            return False
-        return True
-
-    def _gate(self, t: float, pose: gtsam.Pose2, z: np.ndarray, ve: float, vn: float) -> bool:
-        """Accept a fix unless, with a settled estimate, it is implausibly far from it."""
-        if not self.settled:
-            self.settled = self.counters.gps_used >= 20
-            return True
-        innovation = z - F.gps_antenna(pose, self.lever)
+    def _antenna_cov(self, pose: gtsam.Pose2) -> np.ndarray:
+        """Covariance of the estimated antenna position plus drift, map axes: the newest
+        keyframe's pose marginal (the fixes decided lie within a second or two of it) mapped
+        through the lever arm, plus the drift's stationary variance (conservative: the two
+        are estimated together and partly cancel)."""
         c, s = math.cos(pose.theta()), math.sin(pose.theta())
         R = np.array([[c, -s], [s, c]])
-        J = np.hstack([R, (R @ np.array([-self.lever[1], self.lever[0]]))[:, None]])  # d antenna / d xi
-        S = J @ self.cov @ J.T + np.diag([ve, vn])
-        d2 = float(innovation @ np.linalg.solve(S, innovation))
-        if d2 <= self.p.noise.gps_gate:
-            self.rejecting_since = None
-            return True
-        if self.rejecting_since is None:
-            self.rejecting_since = t
-        if t - self.rejecting_since > self.GATE_YIELD:  # lost, not misled: let the fixes back in
-            self.rejecting_since = None
-            return True
-        self.counters.gps_rejected += 1
-        return False
+        J = np.hstack([R, (R @ np.array([-self.lever[1], self.lever[0]]))[:, None]])  # d antenna / d xi (body)
+        return J @ self.cov @ J.T + np.eye(2) * self.p.noise.gps_drift ** 2
 
     def _add_mags(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
         """One factor per ``1 / mag_rate`` s slot: the mean of its readings, on the keyframe

@@ -119,6 +119,13 @@ class MultipathParams(EpisodeParams):
     offset_scale: float = param(3.0, lo=0.0, hi=1e4, unit="m",
                                 doc="Rayleigh scale of the horizontal offset during a burst")
     vertical_scale: float = param(2.0, lo=0.0, hi=1e4, unit="m", doc="std of the vertical offset during a burst")
+    offset_range: Tuple[float, float] = param((0.0, 0.0), lo=0.0, hi=1e4, unit="m",
+                                              doc="[min, max] of a uniform horizontal offset instead of the "
+                                                  "Rayleigh one ([0, 0]: Rayleigh)")
+
+    def __post_init__(self) -> None:
+        if self.offset_range[0] > self.offset_range[1]:
+            raise ValueError(f"'offset_range' {list(self.offset_range)}: min above max")
 
 
 @dataclass(frozen=True)
@@ -185,7 +192,11 @@ class GpsNoise:
             self._burst_end = self.multipath.episode_end(t)
             self.bursts += 1
             g = self.offset_rng
-            r = p.multipath.offset_scale * math.sqrt(-2.0 * math.log(1.0 - g.random()))
+            lo, hi = p.multipath.offset_range
+            if hi > 0.0:
+                r = g.uniform(lo, hi)
+            else:
+                r = p.multipath.offset_scale * math.sqrt(-2.0 * math.log(1.0 - g.random()))
             a = g.uniform(0.0, 2.0 * math.pi)
             self._offset = np.array([r * math.cos(a), r * math.sin(a), g.normal(0.0, p.multipath.vertical_scale)])
         k = p.degradation.std_factor if degraded else 1.0

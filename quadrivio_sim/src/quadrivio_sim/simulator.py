@@ -37,6 +37,21 @@ from .world import Obstacle, PhysicsParams, Pose2D, World
 
 
 @dataclass(frozen=True)
+class MeasurementParams:
+    """What the PLC's encoders get wrong (the calibration the localization must find out).
+    The defaults are a perfect vehicle."""
+    handlebar_offset: float = param(0.0, lo=-0.5, hi=0.5, unit="rad",
+                                    doc="the steered wheels stand this much left of the handlebar angle the PLC "
+                                        "measures and reports (a misaligned encoder)")
+    wheel_speed_scale: float = param(1.0, lo=0.5, hi=2.0,
+                                     doc="measured over true rear wheel speed (a wrong wheel radius); the PLC's "
+                                         "speed loop acts on the measured speed, as on the vehicle")
+    wheel_speed_dead: Tuple[Tuple[float, float], ...] = param(
+        (), unit="s", doc="[[start, end], ...] sim time during which the reported wheel speed reads 0 (a dead "
+                          "channel; the PLC's own speed loop keeps its encoder, so the vehicle drives on)")
+
+
+@dataclass(frozen=True)
 class SimParams:
     """Contents of ``config/sim.yaml`` (the simulator node's private parameters)."""
     physics: PhysicsParams = param(PhysicsParams())
@@ -49,6 +64,7 @@ class SimParams:
     joint_states_rate: float = param(20.0, lo=1.0, hi=1000.0, unit="Hz", doc="/joint_states rate")
     sensors: SensorsParams = param(SensorsParams())
     plc: PlcParams = param(PlcParams())
+    measurement: MeasurementParams = param(MeasurementParams(), doc="encoder errors and faults (default: none)")
 
 
 @dataclass(frozen=True)
@@ -142,8 +158,10 @@ class Simulator:
             if self.script is not None:
                 self.plc.force_auto(self.t)
                 self.plc.setpoint(P.SOURCE_AUTO, *self.script.at(self.t))
-            act = self.plc.cycle(self.t, w.rear_wheel_speed, w.rear_wheel_rate)
-            w.set_handlebar(act.handlebar)
+            m = self.params.measurement
+            act = self.plc.cycle(self.t, m.wheel_speed_scale * w.rear_wheel_speed,
+                                 m.wheel_speed_scale * w.rear_wheel_rate)
+            w.set_handlebar(act.handlebar + m.handlebar_offset)
             w.set_drive_torque(act.drive_torque)
             w.set_brake(act.brake_torque)
         w.step()
@@ -164,7 +182,11 @@ class Simulator:
         return JointSample(t, tuple(names), tuple(pos), tuple(vel))
 
     def _plc_state(self, t: float):
-        return self.plc.state(t, self.world.rear_wheel_speed)
+        m = self.params.measurement
+        speed = m.wheel_speed_scale * self.world.rear_wheel_speed
+        if any(a <= t < b for a, b in m.wheel_speed_dead):
+            speed = 0.0
+        return self.plc.state(t, speed)
 
     def close(self) -> None:
         self.world.close()

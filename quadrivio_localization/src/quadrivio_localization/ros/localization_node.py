@@ -148,6 +148,9 @@ class LocalizationNode:
                 self.loc = Localizer(self.p, self.vehicle, self.site)
                 return
             sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.np.calibration_period else None
+            events = self.loc.pop_events()
+        for e in events:
+            rospy.logwarn("localization: %s", e)
         self.update_ms.append((time.perf_counter() - w0) * 1e3)
         self.update_ms = self.update_ms[-1000:]
         if est is None:
@@ -193,16 +196,20 @@ class LocalizationNode:
         else:
             sd = math.sqrt(max(self.estimate.covariance[0, 0], self.estimate.covariance[1, 1]))
             stat.summary(DiagnosticStatus.OK, f"tracking, position sigma {sd:.2f} m")
+        faults = self.loc.faults()
+        if faults:
+            stat.summary(DiagnosticStatus.WARN, "; ".join(faults))
         ups = sorted(self.update_ms) or [math.nan]
         for key, value in (("magnetometer calibration", self.p.priors.magnetometer.source),
                            ("keyframes", c.keyframes), ("GPS fixes used", c.gps_used),
-                           ("GPS fixes rejected (multipath suspected)", c.gps_rejected),
-                           ("GPS jumps (suspected multipath bursts)", c.gps_jumps),
-                           ("GPS fixes rejected inside them", c.gps_jump_rejected),
-                           ("GPS epochs without a fix", c.gps_no_fix), ("magnetometer factors", c.mag_used),
+                           ("GPS fixes not used", self.loc.gate.summary()),
+                           *((f"GPS fixes not used: {r}", n) for r, n in self.loc.gate.counts.items()),
+                           ("magnetometer factors", c.mag_used),
                            ("magnetometer slots skipped at rest", c.mag_skipped_at_rest),
                            ("intervals without odometry", c.intervals_without_odometry),
                            ("intervals without gyro", c.intervals_without_gyro),
+                           ("intervals with the wheel speed ignored (read 0 while moving)",
+                            c.intervals_wheel_rejected),
                            ("bad or out-of-order inputs", c.bad_input + c.out_of_order),
                            ("inputs rejected by the node", self.guard.summary()),
                            ("restarts after the clock moved back", self.resets),

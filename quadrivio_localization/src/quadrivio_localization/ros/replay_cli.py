@@ -216,7 +216,8 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     os.replace(tmp, args.out)
     c = loc.counters
     counts.update(wall_s=round(time.perf_counter() - wall0, 3), bag_s=round(t_end - t_start, 3),
-                  keyframes=c.keyframes, gps_used=c.gps_used, gps_rejected=c.gps_rejected)
+                  keyframes=c.keyframes, gps_used=c.gps_used, gps_not_used=dict(loc.gate.counts),
+                  gps_not_used_summary=loc.gate.summary())
     return counts
 
 
@@ -231,5 +232,5 @@ def main(argv=None) -> int:
           f"{counts['wall_s']} s ({counts['bag_s'] / max(counts['wall_s'], 1e-9):.1f}x real time); inputs: "
           f"{counts['gps']} GPS, {counts['imu']} IMU, {counts['mag']} magnetometer, {counts['state']} vehicle state"
           f"{', %d unusable' % counts['bad'] if counts['bad'] else ''}; GPS fixes used {counts['gps_used']}, "
-          f"rejected {counts['gps_rejected']}")
+          f"not used: {counts['gps_not_used_summary']}")
     return 0

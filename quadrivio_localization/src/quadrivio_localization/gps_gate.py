@@ -1,0 +1,214 @@
+"""Which GPS fixes the smoother may believe: a test of each fix, and of the fixes around it,
+against the estimate, scaled by what the receiver reports and by what the estimate knows.
+
+A receiver's reported covariance covers its noise, never the multipath it cannot see:
+multipath moves the fix by metres for seconds while the receiver still claims its usual
+precision. Nothing here is a distance in metres. Every test is a squared Mahalanobis
+distance of the innovation ``nu = z - h(x)`` (the fix against the estimated antenna
+position plus the estimated receiver drift) under its covariance: the estimate's own
+(``P``, what the smoother says it knows) plus the fix's (``R``, what the receiver says,
+floored by what its status can deliver). So one receiver's 3 m scatter and another's 3 cm
+are judged alike, and an estimate that has dead-reckoned through an outage, and knows it,
+accepts the fixes that come back.
+
+Two tests, each by its own reason:
+
+* **outlier** -- one fix alone: ``nu' (P + R)^-1 nu > gate`` (chi-square, 2 degrees of
+  freedom).
+* **multipath** -- a fix and the fixes of the next ``group`` seconds, together: their mean
+  innovation against ``P + mean(R) / n``. A burst shows as a sustained offset that single
+  fixes of a noisy receiver hide (a 7 m offset under 1.5 m of white noise is a 2-sigma
+  fix, but 4 such fixes in a row are a 9-sigma mean). The test looks ahead: a fix is decided
+  once the fixes ``group`` seconds after it are in (the smoother's window is longer), so the
+  first fix of a burst is judged with the burst and a burst ends with the first fix whose
+  group is clean. The test needs no state of its own: nothing can stay "in a burst" across
+  an outage.
+
+* **jump** (also counted as multipath) -- a fix against the previous one (at most
+  ``jump_window`` s before): the step of the fixes minus the step of the estimated antenna,
+  against both fixes' covariances plus the odometry's over the step. A precise receiver's
+  burst starts with a step of many sigmas; the burst's offset is then followed fix to fix
+  and the burst ends when the offset returns (under ``jump_gate / 4``), when the fixes stop
+  for longer than ``jump_window`` (an outage ends it: nothing is held across one), or
+  after ``yield_after``. A noisy receiver's steps are too noisy for this test; the group
+  test catches its bursts.
+
+After ``yield_after`` s in which every fix was rejected, the gate accepts again (counted as
+``yielded``): an estimate that is wrong and overconfident must not lock its only absolute
+sensor out. Before the estimate has settled (``settle_fixes`` fixes used) every fix is used.
+
+Pure and ROS-free; testable on synthetic fixes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Dict, Optional, Sequence, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import param
+
+# sensor_msgs/NavSatStatus
+STATUS_NAMES = {-1: "NO_FIX", 0: "FIX", 1: "SBAS_FIX", 2: "GBAS_FIX"}
+
+# Reasons a fix is not used (counters, diagnostics, replay summary, metrics.json).
+NO_FIX = "no fix"  # the receiver said so
+NOT_FINITE = "not finite"
+TOO_OLD = "too old"  # its keyframe has left the smoother's window (or it arrived far too late)
+OUTLIER = "outlier"
+MULTIPATH = "multipath"
+REASONS = (NO_FIX, NOT_FINITE, TOO_OLD, OUTLIER, MULTIPATH)
+
+
+@dataclass(frozen=True)
+class GpsGateParams:
+    gate: float = param(25.0, lo=1.0, hi=1e6, doc="reject one fix whose squared Mahalanobis innovation is above this "
+                                                  "(chi-square, 2 dof: 25 is p = 4e-6)")
+    group_gate: float = param(16.0, lo=1.0, hi=1e6,
+                              doc="reject a fix when the mean innovation of it and the fixes of the next 'group' s "
+                                  "is above this (chi-square, 2 dof: 16 is p = 3e-4)")
+    group: float = param(1.0, lo=0.0, hi=2.5, unit="s",
+                         doc="look-ahead of the multipath test; a fix is used this much later (0: no multipath test)")
+    group_wait: float = param(0.5, lo=0.0, hi=2.0, unit="s",
+                              doc="decide anyway this long after the group's end when no later fix came (outage)")
+    jump_gate: float = param(25.0, lo=1.0, hi=1e6,
+                             doc="a step between consecutive fixes this far (squared Mahalanobis) from the "
+                                 "estimate's step starts a suspected burst")
+    jump_window: float = param(2.0, lo=0.0, hi=60.0, unit="s",
+                               doc="fixes further apart are not compared; a gap this long ends a burst")
+    yield_after: float = param(30.0, lo=0.0, hi=1e4, unit="s",
+                               doc="accept fixes again after this long with every fix rejected")
+    settle_fixes: int = param(20, lo=0, hi=100000, doc="fixes used before the tests start")
+    min_std: Tuple[float, float, float] = param((0.5, 0.3, 0.01), lo=0.0, hi=100.0, unit="m",
+                                                doc="smallest horizontal standard deviation believed for a fix of "
+                                                    "status FIX, SBAS_FIX, GBAS_FIX (whatever it reports)")
+
+    def status_floor(self, status: int) -> float:
+        """Smallest variance [m^2] believed for a fix of ``status``."""
+        return self.min_std[max(0, min(2, int(status)))] ** 2
+
+
+@dataclass
+class Fix:
+    """One fix on its way into the smoother."""
+    t: float  # [s] measurement time
+    z: np.ndarray  # [m] east, north of the antenna (map frame)
+    R: np.ndarray  # 2 x 2 reported (and floored) covariance of the fix, its white part [m^2]
+    status: int
+
+
+@dataclass
+class Verdict:
+    use: bool
+    reason: str = ""  # one of REASONS when not used
+    d2: float = math.nan  # the deciding test's squared Mahalanobis distance
+    yielded: bool = False
+
+
+def mahalanobis2(nu: np.ndarray, S: np.ndarray) -> float:
+    try:
+        return float(nu @ np.linalg.solve(S, nu))
+    except np.linalg.LinAlgError:
+        return math.inf
+
+
+class GpsGate:
+    """Decides fixes (see module docstring). The caller supplies, per fix, its innovation
+    against the current estimate and that estimate's covariance (antenna position and drift,
+    map axes)."""
+
+    def __init__(self, p: GpsGateParams) -> None:
+        self.p = p
+        self.used = 0
+        self.rejecting_since: Optional[float] = None
+        self.counts: Dict[str, int] = {r: 0 for r in REASONS}
+        self.yielded = 0
+        self.last_d2 = math.nan  # of the latest decided fix (diagnostics)
+        self.burst: Optional[np.ndarray] = None  # offset of the suspected burst so far [m]
+        self.burst_R0 = np.zeros((2, 2))  # covariance of the last fix before the burst
+        self.burst_Q = np.zeros((2, 2))  # of the estimated antenna's motion since
+        self.burst_since = -math.inf
+        self.last_fix_t = -math.inf
+        self.bursts = 0
+
+    @property
+    def settled(self) -> bool:
+        return self.used >= self.p.settle_fixes
+
+    def skip(self, reason: str) -> None:
+        """Count a fix that never reached the tests (no fix, not finite, too old)."""
+        self.counts[reason] += 1
+
+    def decide(self, t: float, nu: np.ndarray, P: np.ndarray, R: np.ndarray,
+               group: Sequence[Tuple[np.ndarray, np.ndarray]] = (),
+               step: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> Verdict:
+        """Decide the fix of time ``t``: innovation ``nu``, estimate covariance ``P``, fix
+        covariance ``R``; ``group``: (innovation, fix covariance) of the fixes of the next
+        ``group`` seconds, against the same estimate; ``step``: (fix step minus estimated
+        antenna step since the previous fix, the previous fix's covariance, this fix's, the
+        estimated motion's), None without a previous fix."""
+        jumped = self._jump(t, step)
+        verdict = Verdict(False, MULTIPATH, math.nan) if jumped else self._test(nu, P, R, group)
+        if verdict.use:
+            self.rejecting_since = None
+        else:
+            if self.rejecting_since is None:
+                self.rejecting_since = t
+            if t - self.rejecting_since > self.p.yield_after:  # lost, not misled: let the fixes back in
+                self.rejecting_since = None
+                self.yielded += 1
+                verdict = Verdict(True, "", verdict.d2, yielded=True)
+        if verdict.use:
+            self.used += 1
+        else:
+            self.counts[verdict.reason] += 1
+        self.last_d2 = verdict.d2
+        return verdict
+
+    def _jump(self, t: float, step) -> bool:
+        """Whether the fix is inside a suspected burst that began with a jump."""
+        gap = t - self.last_fix_t
+        self.last_fix_t = t
+        if self.burst is not None and (gap > self.p.jump_window or t - self.burst_since > self.p.yield_after):
+            self.burst = None  # an outage, or too long: whatever it was, it is over
+        if step is None or not self.settled or gap > self.p.jump_window:
+            return self.burst is not None
+        d, R_prev, R, Q = step
+        if self.burst is None:
+            if mahalanobis2(d, R_prev + R + Q) > self.p.jump_gate:
+                # the offset since the last good fix: that fix's noise, the motion's, the newest fix's
+                self.burst, self.burst_R0, self.burst_Q, self.burst_since = d.copy(), R_prev, Q.copy(), t
+                self.bursts += 1
+                return True
+            return False
+        self.burst = self.burst + d
+        self.burst_Q = self.burst_Q + Q
+        if mahalanobis2(self.burst, self.burst_R0 + self.burst_Q + R) < self.p.jump_gate / 4.0:
+            self.burst = None  # the fix jumped back
+            return False
+        return True
+
+    def _test(self, nu, P, R, group) -> Verdict:
+        if not self.settled:
+            return Verdict(True)
+        d2 = mahalanobis2(nu, P + R)
+        if d2 > self.p.gate:
+            return Verdict(False, OUTLIER, d2)
+        if group:
+            n = 1 + len(group)
+            mean = (nu + sum(g[0] for g in group)) / n
+            mean_R = (R + sum(g[1] for g in group)) / n
+            d2g = mahalanobis2(mean, P + mean_R / n)
+            if d2g > self.p.group_gate:
+                return Verdict(False, MULTIPATH, d2g)
+            return Verdict(True, "", max(d2, d2g))
+        return Verdict(True, "", d2)
+
+    def summary(self) -> str:
+        """One line of the counts by reason, for diagnostics and summaries."""
+        parts = [f"{n} {r}" for r, n in self.counts.items() if n]
+        if self.yielded:
+            parts.append(f"{self.yielded} accepted after {self.p.yield_after:g} s of rejections")
+        return ", ".join(parts) if parts else "none"
