@@ -192,6 +192,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     end_reason = "max_duration"
     done_at: Optional[float] = None
     smoother_wall = 0.0
+    restarts = 0
     last_diag = ""
     sim.plc.force_auto(0.0)
 
@@ -251,7 +252,13 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
                 getattr(inputs, kind).append((deliver,) + tuple(data))
         if sim.steps % loc_steps == 0:
             w0 = time.perf_counter()
-            e = loc.update(t)
+            try:
+                e = loc.update(t)
+            except RuntimeError as exc:  # as the node does: a numerically failed update restarts the smoother
+                diagnostics.append((t, f"smoother update failed ({str(exc).strip().splitlines()[0]}): restarted"))
+                restarts += 1
+                loc = (localizer_factory or Localizer)(lp, v, site)
+                e = None
             dt_wall = time.perf_counter() - w0
             smoother_wall += dt_wall
             update_ms.append(dt_wall * 1e3)
@@ -271,6 +278,11 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     est = loc._estimate() if hasattr(loc, "_estimate") else None
     calibration = dict(est.calibration) if est is not None else {}
     counters = dict(vars(loc.counters)) if hasattr(loc, "counters") else {}
+    counters["restarts"] = restarts
+    gate = getattr(loc, "gate", None)
+    if gate is not None:
+        counters["gps_not_used"] = {k: v for k, v in gate.counts.items() if v}
+        counters["gps_accepted_after_yield"] = gate.yielded
     return OfflineRun(s.name, seed, np.array(truth), np.array(antenna), np.array(estimate).reshape(-1, 8),
                       calibration, counters, diagnostics, np.array(update_ms), smoother_wall / max(sim.t, 1e-9),
                       time.perf_counter() - wall0, end_reason, inputs, truth_calibration(sp, mp.noise))

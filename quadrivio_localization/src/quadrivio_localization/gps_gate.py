@@ -20,9 +20,10 @@ Two tests, each by its own reason:
   fixes of a noisy receiver hide (a 7 m offset under 1.5 m of white noise is a 2-sigma
   fix, but 4 such fixes in a row are a 9-sigma mean). The test looks ahead: a fix is decided
   once the fixes ``group`` seconds after it are in (the smoother's window is longer), so the
-  first fix of a burst is judged with the burst and a burst ends with the first fix whose
-  group is clean. The test needs no state of its own: nothing can stay "in a burst" across
-  an outage.
+  first fix of a burst is judged with the burst. It looks back too: a fix whose previous
+  ``group`` seconds are inconsistent and which sits with them rather than with the estimate
+  is a burst's tail (its look-ahead group, mostly clean fixes, would hide it). The test
+  needs no state of its own: nothing can stay "in a burst" across an outage.
 
 * **jump** (also counted as multipath) -- a fix against the previous one (at most
   ``jump_window`` s before): the step of the fixes minus the step of the estimated antenna,
@@ -143,14 +144,16 @@ class GpsGate:
 
     def decide(self, t: float, nu: np.ndarray, P: np.ndarray, R: np.ndarray,
                group: Sequence[Tuple[np.ndarray, np.ndarray]] = (),
-               step: Optional[Tuple[np.ndarray, np.ndarray]] = None) -> Verdict:
+               step: Optional[Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = None,
+               behind: Sequence[Tuple[np.ndarray, np.ndarray]] = ()) -> Verdict:
         """Decide the fix of time ``t``: innovation ``nu``, estimate covariance ``P``, fix
         covariance ``R``; ``group``: (innovation, fix covariance) of the fixes of the next
         ``group`` seconds, against the same estimate; ``step``: (fix step minus estimated
         antenna step since the previous fix, the previous fix's covariance, this fix's, the
-        estimated motion's), None without a previous fix."""
+        estimated motion's), None without a previous fix; ``behind``: (innovation, fix
+        covariance) of the fixes of the previous ``group`` seconds, against the same estimate."""
         jumped = self._jump(t, step)
-        verdict = Verdict(False, MULTIPATH, math.nan) if jumped else self._test(nu, P, R, group)
+        verdict = Verdict(False, MULTIPATH, math.nan) if jumped else self._test(nu, P, R, group, behind)
         if verdict.use:
             self.rejecting_since = None
         else:
@@ -190,21 +193,32 @@ class GpsGate:
             return False
         return True
 
-    def _test(self, nu, P, R, group) -> Verdict:
+    def _group_d2(self, nu, P, R, group) -> Tuple[float, np.ndarray]:
+        """Squared Mahalanobis distance of the mean innovation of the fix and ``group``, and that mean."""
+        n = 1 + len(group)
+        mean = (nu + sum(g[0] for g in group)) / n
+        mean_R = (R + sum(g[1] for g in group)) / n
+        return mahalanobis2(mean, P + mean_R / n), mean
+
+    def _test(self, nu, P, R, group, behind=()) -> Verdict:
         if not self.settled:
             return Verdict(True)
         d2 = mahalanobis2(nu, P + R)
         if d2 > self.p.gate:
             return Verdict(False, OUTLIER, d2)
+        worst = d2
         if group:
-            n = 1 + len(group)
-            mean = (nu + sum(g[0] for g in group)) / n
-            mean_R = (R + sum(g[1] for g in group)) / n
-            d2g = mahalanobis2(mean, P + mean_R / n)
-            if d2g > self.p.group_gate:
-                return Verdict(False, MULTIPATH, d2g)
-            return Verdict(True, "", max(d2, d2g))
-        return Verdict(True, "", d2)
+            d2a, _ = self._group_d2(nu, P, R, group)
+            if d2a > self.p.group_gate:  # a burst begins here or goes on
+                return Verdict(False, MULTIPATH, d2a)
+            worst = max(worst, d2a)
+        if behind:
+            # A burst's last fixes have clean fixes ahead of them: look back too, and reject
+            # a fix that sits with an inconsistent past rather than with the estimate.
+            d2b, mean_b = self._group_d2(nu, P, R, behind)
+            if d2b > self.p.group_gate and mahalanobis2(nu - mean_b, R) < mahalanobis2(nu, R):
+                return Verdict(False, MULTIPATH, d2b)
+        return Verdict(True, "", worst)
 
     def summary(self) -> str:
         """One line of the counts by reason, for diagnostics and summaries."""

@@ -208,6 +208,8 @@ class Localizer:
         self.mags: Deque[Tuple[float, float, float]] = deque(maxlen=5000)  # t, levelled m_x, m_y [uT]
         self.gps_pending: List[Tuple[float, np.ndarray, float, float, int]] = []  # t, enu, white var e, n, status
         self.gate = GpsGate(p.gps_gate)
+        self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
+        self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.prev_fix: Optional[Tuple[float, np.ndarray, np.ndarray, np.ndarray]] = None  # t, fix, antenna, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -452,6 +454,7 @@ class Localizer:
             self.latest_speed = kin[0] * samples[-1][1]
         else:
             self.counters.intervals_without_odometry += 1
+            self.no_odometry_t = t1
             graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), gtsam.Pose2(),
                                                gtsam.noiseModel.Diagonal.Sigmas(np.array(nz.no_odometry))))
             guess = prev
@@ -588,14 +591,21 @@ class Localizer:
                         group.append((other[0], np.diag(self.gps_pending[j][2:4])))
             antenna = zc - nu  # estimated antenna plus drift
             step = None
-            if self.prev_fix is not None and self.prev_fix[0] < t:
+            if self.prev_fix is not None and self.prev_fix[0] < t and self.prev_fix[0] > self.no_odometry_t:
+                # (the estimated antenna's step says little without odometry over it)
                 t_p, z_p, a_p, R_p = self.prev_fix
                 n = (t - t_p) / self.dt
                 dist = abs(self.latest_speed) * (t - t_p)
                 Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
                 step = ((zc - z_p) - (antenna - a_p), R_p, R, Q)
             self.prev_fix = (t, zc, antenna, R)
-            verdict = self.gate.decide(t, nu, self._antenna_cov(pose), R, group, step)
+            behind = []
+            for t_b, z_b, k_b, R_b in self.decided:
+                pose_b = self._pose(k_b, values) if t - g.group - 1e-9 <= t_b and k_b >= self.oldest_k else None
+                if pose_b is not None:
+                    behind.append((z_b - self._vector(G(k_b), values) - F.gps_antenna(pose_b, self.lever), R_b))
+            self.decided.append((t, zc, k, R))
+            verdict = self.gate.decide(t, nu, self._antenna_cov(pose), R, group, step, behind)
             if verdict.use:
                 noise = gtsam.noiseModel.Robust.Create(
                     gtsam.noiseModel.mEstimator.Huber.Create(self.p.noise.gps_huber),

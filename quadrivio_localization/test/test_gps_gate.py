@@ -1,0 +1,111 @@
+"""The GPS gate alone, on synthetic innovations: receivers of 3 cm and of 3 m judged by
+their own covariances, bursts that end, outages that end bursts, reasons counted."""
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio_localization.gps_gate import MULTIPATH, OUTLIER, GpsGate, GpsGateParams
+
+
+def settled_gate(**over):
+    g = GpsGate(GpsGateParams(**over))
+    g.used = g.p.settle_fixes
+    return g
+
+
+def feed(gate, sigma, offsets, rate=5.0, P=0.05, seed=0, group_n=None):
+    """Feed fixes of white noise ``sigma`` (what the receiver reports) plus ``offsets[i]``
+    (multipath: unseen by the receiver) against a perfect estimate of std ``P`` [m];
+    each with the look-ahead group of the fixes that follow it."""
+    rng = np.random.default_rng(seed)
+    R = np.eye(2) * sigma ** 2
+    Pm = np.eye(2) * P ** 2
+    n = len(offsets)
+    nus = [rng.normal(0, sigma, 2) + np.asarray(offsets[i], float) for i in range(n)]
+    k = int(round(gate.p.group * rate)) if group_n is None else group_n
+    verdicts = []
+    prev = None
+    for i in range(n):
+        group = [(nus[j], R) for j in range(i + 1, min(n, i + 1 + k))]
+        behind = [(nus[j], R) for j in range(max(0, i - k), i)]
+        step = None if prev is None else (nus[i] - prev, R, R, np.eye(2) * 1e-4)
+        prev = nus[i]
+        verdicts.append(gate.decide(i / rate, nus[i], Pm, R, group, step, behind))
+    return verdicts
+
+
+@pytest.mark.parametrize("sigma", [0.03, 0.3, 3.0])
+def test_clean_fixes_are_used_whatever_the_receiver(sigma):
+    g = settled_gate()
+    v = feed(g, sigma, [(0.0, 0.0)] * 500, P=sigma)
+    assert sum(not x.use for x in v) <= 2, g.summary()  # chi-square tails at p ~ 1e-4
+
+
+@pytest.mark.parametrize("sigma,offset", [(0.03, 1.2), (1.5, 7.0), (3.0, 12.0)])
+def test_a_burst_is_rejected_and_ends(sigma, offset):
+    """A burst of a few sigmas per fix (7 m under 1.5 m of white noise) is a many-sigma
+    mean over its group; the fixes after it are used again at once."""
+    g = settled_gate()
+    offsets = [(0.0, 0.0)] * 50 + [(offset, 0.0)] * 25 + [(0.0, 0.0)] * 50
+    v = feed(g, sigma, offsets, P=0.5 * sigma)
+    during = v[52:75]  # the first fix or two of a burst may pass: the Huber kernel takes them
+    after = v[77:]
+    assert np.mean([not x.use for x in during]) >= 0.9, g.summary()
+    assert all(x.reason == MULTIPATH or x.reason == OUTLIER for x in during if not x.use)
+    assert np.mean([x.use for x in after]) >= 0.97, g.summary()
+    assert g.counts[MULTIPATH] + g.counts[OUTLIER] >= 20
+
+
+def test_an_outage_ends_a_jump_burst():
+    """The old fixed-threshold jump test held a burst open across a 14 s outage and dropped
+    every fix after it: a gap longer than jump_window ends a burst."""
+    g = settled_gate(group=0.0)
+    R = np.eye(2) * 0.03 ** 2
+    P = np.eye(2) * 0.05 ** 2
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, np.eye(2) * 1e-4)).use
+        t += 0.2
+    jump = np.array([1.5, 0.0])
+    assert not g.decide(t, jump, P, R, (), (jump, R, R, np.eye(2) * 1e-4)).use  # the burst starts
+    t += 14.0  # outage, then the fixes are good again: the estimate (dead-reckoned) knows it is less sure
+    v = g.decide(t, np.array([0.1, 0.0]), P * 4, R, (), (np.array([-1.4, 0.0]), R, R, np.eye(2) * 0.01))
+    assert v.use and g.burst is None
+
+
+def test_an_uncertain_estimate_accepts_what_a_sure_one_rejects():
+    """Scaled by the estimate's covariance: after an outage the dead-reckoned estimate is
+    uncertain, and a fix 2 m off is news, not an outlier."""
+    R = np.eye(2) * 0.03 ** 2
+    nu = np.array([2.0, 0.0])
+    assert not settled_gate().decide(0.0, nu, np.eye(2) * 0.1 ** 2, R).use
+    assert settled_gate().decide(0.0, nu, np.eye(2) * 1.0 ** 2, R).use
+
+
+def test_a_lost_estimate_yields():
+    """Every fix rejected for yield_after s: the estimate, not the receiver, is wrong."""
+    g = settled_gate(yield_after=5.0)
+    R, P = np.eye(2) * 0.01, np.eye(2) * 0.01
+    verdicts = [g.decide(0.2 * i, np.array([5.0, 0.0]), P, R) for i in range(40)]
+    assert not verdicts[0].use and any(v.yielded for v in verdicts) and g.yielded >= 1
+    assert "accepted after 5 s" in g.summary()
+
+
+def test_unsettled_gate_uses_everything_and_skips_are_counted():
+    g = GpsGate(GpsGateParams(settle_fixes=3))
+    for i in range(3):
+        assert g.decide(i, np.array([100.0, 0.0]), np.eye(2), np.eye(2)).use
+    assert not g.decide(3, np.array([100.0, 0.0]), np.eye(2), np.eye(2)).use
+    g.skip("no fix")
+    g.skip("too old")
+    assert g.counts["no fix"] == 1 and g.counts["too old"] == 1 and g.counts[OUTLIER] == 1
+    assert g.summary() == "1 no fix, 1 too old, 1 outlier"
+
+
+def test_status_floors_a_fix_that_claims_too_much():
+    p = GpsGateParams()
+    assert p.status_floor(0) == pytest.approx(0.25)  # a plain FIX is not believed below 0.5 m
+    assert p.status_floor(2) == pytest.approx(1e-4)
+    assert p.status_floor(7) == p.status_floor(2) and p.status_floor(-3) == p.status_floor(0)
+    assert math.isfinite(GpsGate(p).last_d2) is False

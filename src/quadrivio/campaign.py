@@ -1,0 +1,327 @@
+"""``rosrun quadrivio campaign SCENARIOS... --seeds N --out DIR``: scenarios x seeds, in parallel.
+
+Each run is either *offline* (default: :mod:`quadrivio.offline`, the simulator core, the
+sensor models and the smoother in one process, no ROS master, as fast as the CPU goes) or
+*closed loop* (``--closed-loop``: ``experiment`` per run, the whole stack on its own ROS
+master). Runs are tasks on Dask distributed: a local cluster of ``--workers`` processes
+by default, or the scheduler at ``--scheduler ADDRESS`` (``dask-scheduler`` on one machine,
+``dask-worker ADDRESS`` on each of the others, all with this workspace sourced).
+
+Written to ``DIR`` (each file complete or absent: written aside and renamed):
+
+* ``runs/<scenario>_s<seed>.json`` -- one run's figures (and, offline, ``.npz`` with its
+  error over time); a campaign run again into the same folder reuses finished runs of
+  the same scenario file and seed, so an interrupted campaign resumes;
+* ``campaign.csv``, ``campaign.md`` -- one row per scenario: mean and spread (standard
+  deviation) over the seeds of every figure;
+* ``campaign.json`` -- the table and every run;
+* ``<scenario>_errors.png`` -- position error over time, one line per seed, the raw GPS's
+  error behind it (offline runs).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from typing import Dict, List, Optional
+
+import numpy as np
+
+from quadrivio_description.config import ConfigError
+
+from .scenario import load_scenario
+
+# Figures of a run that the table averages (key, header, unit)
+COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_gps", "RMSE / GPS", ""),
+           ("max_error_m", "max error", "m"), ("heading_rmse_deg", "heading RMSE", "deg"),
+           ("steer_offset_error_deg", "steering offset error", "deg"),
+           ("wheel_scale_error_pct", "wheel scale error", "%"), ("outage_end_error_m", "error at outage end", "m"),
+           ("outage_10s_error_m", "error 10 s after", "m"), ("dead_wheel_named_after_s", "fault named after", "s"),
+           ("gps_not_used", "GPS fixes not used", ""), ("update_p99_ms", "update p99", "ms"),
+           ("cpu_frac", "smoother CPU", ""))
+
+
+class CampaignError(Exception):
+    pass
+
+
+def _atomic_write(path: str, data: bytes) -> None:
+    d = os.path.dirname(path) or "."
+    fd, tmp = tempfile.mkstemp(dir=d, prefix="." + os.path.basename(path) + ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _digest(path: str) -> str:
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()[:16]
+
+
+# ----------------------------------------------------------------- one run
+def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
+    """One offline run (a Dask task: imports inside, returns plain data)."""
+    from quadrivio import offline
+
+    s = load_scenario(scenario_path)
+    r = offline.run(s, seed, record_inputs=False)
+    fig = offline.score(r, s, settle)
+    fig = _flatten(fig)
+    err = offline.errors(r)
+    a = r.antenna
+    fixes = a[a[:, 7] >= 0] if len(a) else a
+    buf = io.BytesIO()
+    np.savez_compressed(buf, t=err[:, 0], error=err[:, 1], gps_t=fixes[:, 0],
+                        gps_error=np.hypot(fixes[:, 3] - fixes[:, 1], fixes[:, 4] - fixes[:, 2]))
+    base = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
+    _atomic_write(base + ".npz", buf.getvalue())
+    return fig
+
+
+def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, rtf: Optional[float]) -> Dict:
+    """One run through ``experiment`` (the whole stack on its own ROS master)."""
+    s = load_scenario(scenario_path)
+    folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
+    cmd = ["rosrun", "quadrivio", "experiment", scenario_path, "--seed", str(seed), "--out", folder]
+    if rtf is not None:
+        cmd += ["--rtf", str(rtf)]
+    p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    metrics = os.path.join(folder, "metrics.json")
+    if p.returncode != 0 or not os.path.exists(metrics):
+        tail = " | ".join(p.stdout.strip().splitlines()[-3:])
+        raise CampaignError(f"experiment {s.name} seed {seed} failed (exit {p.returncode}): {tail}")
+    with open(metrics) as f:
+        m = json.load(f)
+    return {"scenario": s.name, "seed": seed, "end": "completed" if m.get("completed") else "not completed",
+            "rmse_m": m.get("loc_rmse_after_10s_m", m.get("loc_rmse_m")), "gps_rmse_m": m.get("gps_rmse_m"),
+            "max_error_m": m.get("loc_max_m"), "heading_rmse_deg": m.get("loc_heading_rmse_deg"),
+            "wall_s": m.get("wall_duration_s")}
+
+
+def _flatten(fig: Dict) -> Dict:
+    out = {k: v for k, v in fig.items() if k not in ("counters", "outages")}
+    if fig.get("outages"):
+        o = fig["outages"][0]
+        out["outage_end_error_m"], out["outage_10s_error_m"] = o["error_at_end_m"], o["error_10s_after_m"]
+    if fig.get("gps_rmse_m") and fig.get("rmse_m") is not None:
+        out["ratio_to_gps"] = fig["rmse_m"] / fig["gps_rmse_m"]
+    counts = (fig.get("counters") or {}).get("gps_not_used") or {}
+    out["gps_not_used"] = float(sum(counts.values())) if counts else 0.0
+    out["gps_not_used_by_reason"] = counts
+    return out
+
+
+# ------------------------------------------------------------------- table
+def table(runs: List[Dict], order: List[str]) -> List[Dict]:
+    rows = []
+    for name in order:
+        rs = [r for r in runs if r["scenario"] == name]
+        row: Dict[str, object] = {"scenario": name, "seeds": len(rs)}
+        for key, _, _ in COLUMNS:
+            vals = np.array([r[key] for r in rs if isinstance(r.get(key), (int, float)) and r[key] is not None
+                             and math.isfinite(r[key])], float)
+            row[key] = float(vals.mean()) if len(vals) else None
+            row[key + "_sd"] = float(vals.std(ddof=1)) if len(vals) > 1 else None
+        rows.append(row)
+    return rows
+
+
+def _fmt(v: Optional[float], sd: Optional[float]) -> str:
+    if v is None:
+        return ""
+    digits = 3 if abs(v) < 10 else 1
+    return f"{v:.{digits}f}" + (f" ± {sd:.{digits}f}" if sd is not None else "")
+
+
+def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> None:
+    used = [c for c in COLUMNS if any(r.get(c[0]) is not None for r in rows)]
+    sio = io.StringIO()
+    w = csv.writer(sio)
+    w.writerow(["scenario", "seeds"] + [h for k, _, _ in used for h in (k, k + "_sd")])
+    for r in rows:
+        w.writerow([r["scenario"], r["seeds"]] + [("" if r.get(h) is None else f"{r[h]:.6g}")
+                                                 for k, _, _ in used for h in (k, k + "_sd")])
+    _atomic_write(os.path.join(out, "campaign.csv"), sio.getvalue().encode())
+    md = [f"# Campaign: {', '.join(r['scenario'] for r in rows)} ({meta['mode']}, seeds {meta['seeds']})", "",
+          "Mean ± standard deviation over the seeds.", "",
+          "| scenario | seeds | " + " | ".join(f"{h} [{u}]" if u else h for _, h, u in used) + " |",
+          "|---|---|" + "---|" * len(used)]
+    for r in rows:
+        md.append(f"| {r['scenario']} | {r['seeds']} | " +
+                  " | ".join(_fmt(r.get(k), r.get(k + "_sd")) for k, _, _ in used) + " |")
+    _atomic_write(os.path.join(out, "campaign.md"), ("\n".join(md) + "\n").encode())
+    _atomic_write(os.path.join(out, "campaign.json"),
+                  json.dumps({"meta": meta, "table": rows, "runs": runs}, indent=1, default=float).encode())
+
+
+def plot(out: str, name: str, seeds: List[int]) -> Optional[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    series = []
+    for seed in seeds:
+        path = os.path.join(out, "runs", f"{name}_s{seed}.npz")
+        if os.path.exists(path):
+            series.append((seed, np.load(path)))
+    if not series:
+        return None
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for i, (seed, d) in enumerate(series):
+        ax.plot(d["gps_t"], d["gps_error"], ".", color="0.75", ms=2, label="raw GPS" if i == 0 else None)
+    for seed, d in series:
+        ax.plot(d["t"], d["error"], lw=1, label=f"seed {seed}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_title(f"{name}: smoother position error, {len(series)} seed(s)")
+    top = max(float(np.percentile(d["error"], 99.5)) for _, d in series)
+    ax.set_ylim(0, max(1e-3, 1.5 * top))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=4, loc="upper right")
+    fig.tight_layout()
+    path = os.path.join(out, f"{name}_errors.png")
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    _atomic_write(path, buf.getvalue())
+    return path
+
+
+# ------------------------------------------------------------------- main
+def parse(argv):
+    p = argparse.ArgumentParser(prog="campaign", description=__doc__.split("\n\n")[0])
+    p.add_argument("scenarios", nargs="+", help="names from quadrivio/scenarios/ or paths to scenario YAML files")
+    p.add_argument("--seeds", type=int, default=3, help="seeds per scenario: 0 .. N-1 (default 3)")
+    p.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--closed-loop", action="store_true", help="run each through experiment (the whole stack)")
+    p.add_argument("--rtf", type=float, default=None, help="closed loop: real-time factor (default: the scenario's)")
+    p.add_argument("--workers", type=int, default=None, help="local cluster processes (default: CPU count)")
+    p.add_argument("--scheduler", default=None, help="address of a Dask scheduler instead of a local cluster")
+    p.add_argument("--settle", type=float, default=20.0, help="[s] error statistics start here (default 20)")
+    args = p.parse_args(argv)
+    if args.seeds < 1 or args.first_seed < 0:
+        p.error("--seeds must be at least 1 and --first-seed non-negative")
+    if args.workers is not None and args.workers < 1:
+        p.error("--workers must be at least 1")
+    if args.settle < 0 or not math.isfinite(args.settle):
+        p.error("--settle must be a non-negative number of seconds")
+    if args.rtf is not None and not (0.0 <= args.rtf <= 100.0):
+        p.error("--rtf must be within [0, 100]")
+    return args
+
+
+def _log(text: str) -> None:
+    print(f"[campaign {time.strftime('%H:%M:%S')}] {text}", flush=True)
+
+
+def main(argv=None) -> int:
+    args = parse(sys.argv[1:] if argv is None else argv)
+    try:
+        scenarios = [load_scenario(n) for n in args.scenarios]
+    except ConfigError as exc:
+        print(f"campaign: {exc}; nothing run", file=sys.stderr)
+        return 2
+    names = [s.name for s in scenarios]
+    if len(set(names)) != len(names):
+        print(f"campaign: a scenario is named twice ({', '.join(names)}); nothing run", file=sys.stderr)
+        return 2
+    os.makedirs(os.path.join(args.out, "runs"), exist_ok=True)
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    mode = "closed loop" if args.closed_loop else "offline"
+    jobs, runs = [], []
+    for s in scenarios:
+        digest = _digest(s.path)
+        for seed in seeds:
+            done = os.path.join(args.out, "runs", f"{s.name}_s{seed}.json")
+            if os.path.exists(done):
+                try:
+                    with open(done) as f:
+                        old = json.load(f)
+                    if old.get("scenario_digest") == digest and old.get("mode") == mode:
+                        runs.append(old)
+                        continue
+                except (OSError, ValueError):
+                    pass  # unreadable: run it again
+            jobs.append((s, seed, digest))
+    total = len(jobs) + len(runs)
+    _log(f"{len(scenarios)} scenario(s) x {len(seeds)} seed(s), {mode}: {len(jobs)} to run"
+         + (f", {len(runs)} already done in {args.out}" if runs else ""))
+    failures = []
+    if jobs:
+        from distributed import Client, LocalCluster, as_completed
+
+        cluster = None
+        if args.scheduler:
+            client = Client(args.scheduler)
+        else:
+            workers = args.workers or os.cpu_count() or 1
+            cluster = LocalCluster(n_workers=min(workers, len(jobs)), threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=40)
+            client = Client(cluster)
+        wall0 = time.monotonic()
+        try:
+            futures = {}
+            for s, seed, digest in jobs:
+                if args.closed_loop:
+                    fut = client.submit(run_closed_loop, s.path, seed, os.path.abspath(args.out), args.settle,
+                                        args.rtf, pure=False)
+                else:
+                    fut = client.submit(run_offline, s.path, seed, os.path.abspath(args.out), args.settle, pure=False)
+                futures[fut] = (s, seed, digest)
+            for fut in as_completed(futures):
+                s, seed, digest = futures[fut]
+                try:
+                    fig = fut.result()
+                except Exception as exc:  # one failed run is reported; the others go on
+                    failures.append(f"{s.name} seed {seed}: {exc}")
+                    _log(f"FAILED {s.name} seed {seed}: {exc}")
+                    continue
+                fig.update(scenario_digest=digest, mode=mode, scenario_file=s.path)
+                _atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
+                              json.dumps(fig, indent=1, default=float).encode())
+                runs.append(fig)
+                elapsed = time.monotonic() - wall0
+                gps = fig.get("gps_rmse_m")
+                _log(f"{len(runs)}/{total} {s.name} seed {seed}: RMSE {fig['rmse_m']:.3f} m"
+                     + (f" (raw GPS {gps:.3f} m)" if gps else "") + f", {elapsed:.0f} s elapsed")
+        except KeyboardInterrupt:
+            _log("interrupted: the finished runs are kept; run the same command to resume")
+            return 130
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
+    rows = table(runs, names)
+    meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios}, "settle_s": args.settle,
+            "failures": failures}
+    write_tables(args.out, rows, runs, meta)
+    if not args.closed_loop:
+        for s in scenarios:
+            plot(args.out, s.name, seeds)
+    _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json, plots)")
+    with open(os.path.join(args.out, "campaign.md")) as f:
+        print(f.read())
+    if failures:
+        print(f"campaign: {len(failures)} run(s) failed: " + "; ".join(failures), file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
