@@ -80,7 +80,7 @@ def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> D
     s = load_scenario(scenario_path)
     r = offline.run(s, seed, record_inputs=False)
     fig = offline.score(r, s, settle)
-    fig = _flatten(fig)
+    fig = flatten(fig)
     err = offline.errors(r)
     a = r.antenna
     fixes = a[a[:, 7] >= 0] if len(a) else a
@@ -112,7 +112,8 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
             "wall_s": m.get("wall_duration_s")}
 
 
-def _flatten(fig: Dict) -> Dict:
+def flatten(fig: Dict) -> Dict:
+    """A run's figures (offline.score) as flat keys: the first outage's, GPS fixes not used by reason."""
     out = {k: v for k, v in fig.items() if k not in ("counters", "outages")}
     if fig.get("outages"):
         o = fig["outages"][0]
