@@ -116,6 +116,9 @@ def parse(argv: List[str]) -> argparse.Namespace:
     ap.add_argument("--mag", default="/imu/mag", help="sensor_msgs/MagneticField topic")
     ap.add_argument("--state", default="/vehicle/state",
                     help="quadrivio_plc/VehicleState topic (or any type with header, wheel_speed, handlebar)")
+    ap.add_argument("--map", default="", metavar="YAML",
+                    help="import mapping of a recording made with other drivers: its topics, types, fields, units "
+                         "(quadrivio_description.ros.import_map); replaces --gps/--imu/--mag/--state")
     ap.add_argument("--only-outputs", action="store_true", help="write only the replay's topics")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap.parse_args(argv)
@@ -133,6 +136,12 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     loc = Localizer(params, load_vehicle(args.vehicle), load_site(args.site))
     bag = open_bag(args.bag, ReplayError)
     topics = {"gps": args.gps, "imu": args.imu, "mag": args.mag, "state": args.state}
+    imap = None
+    if args.map:
+        from quadrivio_description.ros import import_map
+
+        imap = import_map.load(args.map)  # a ConfigError names the file and the key
+        topics = {r: imap.topics().get(r, "") for r in ROLES}
     feed = {"gps": M.add_gps, "imu": M.add_imu, "mag": M.add_mag, "state": M.add_state}
     role_of = {t: r for r, t in topics.items()}
     out_dir = os.path.dirname(os.path.abspath(args.out))
@@ -177,8 +186,12 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                         try:
                             msg = raw[4]()
                             msg.deserialize(raw[1])
+                            if imap is not None:
+                                msg = imap.convert(role, msg, t)
                             feed[role](loc, msg)
                             counts[role] += 1
+                        except ConfigError as exc:  # the mapping names a field the messages lack
+                            raise ReplayError(str(exc)) from exc
                         except (AttributeError, TypeError, ValueError, genpy.DeserializationError) as exc:
                             counts["bad"] += 1
                             if counts["bad"] <= 5:
