@@ -172,3 +172,36 @@ def test_a_missing_topic_or_field_is_named_and_nothing_written(tmp_path, twins, 
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1, err
         assert not out.exists() and not [f for f in os.listdir(tmp_path) if f.startswith(".replay")]
+
+
+def test_calibrate_mag_reads_the_foreign_bag_through_the_mapping(twins):
+    """The same levelled readings from both bags (the fit itself needs a full circle each
+    way, which a 40 s drive is not: compare what is read)."""
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_localization.ros.calibrate_mag_cli import read_levelled
+
+    _, ours, foreign, mfile, _ = twins
+    v = load_vehicle()
+    a, ca = read_levelled(ours, "/imu/mag", "/imu/data", "/vehicle/state", v, 1.0, 0.3, 0.1)
+    b, cb = read_levelled(foreign, "", "", "", v, 1.0, 0.3, 0.1, import_map.load(mfile))
+    assert len(a) > 100 and a.shape == b.shape and np.abs(a - b).max() < 1e-6
+    assert ca["mag"] == cb["mag"] and ca["state"] == cb["state"]
+
+
+def test_analyze_reads_the_foreign_bag_and_names_what_it_lacks(twins, capsys):
+    """A plain recording (no ground truth, no follower): analyze says which topics it lacks,
+    keys that do not apply are null, and through the mapping the GPS and wheel data count."""
+    import json
+
+    from quadrivio.ros import analyze_cli
+
+    d, _, foreign, mfile, _ = twins
+    out = d / "analysis"
+    assert analyze_cli.main([foreign, "--out", str(out), "--map", mfile]) == 0
+    text = capsys.readouterr().out
+    assert "lacks" in text and "/ground_truth/odom" in text and "/follower/status" in text
+    assert "/ublox/pose" not in text.split("lacks")[1]  # mapped: present
+    m = json.load(open(out / "metrics.json"))
+    assert m["completed"] is None and m["loc_rmse_m"] is None
+    assert m["gps_fix_fraction"] is not None and m["gps_fix_fraction"] > 0.9
+    assert (out / "trajectory.png").exists() and (out / "control.png").exists()

@@ -182,7 +182,7 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
         if m["sim_duration_s"]:
             m["rtf"] = float(m["sim_duration_s"]) / wall_duration
     st = run.status
-    m["completed"] = bool(len(st) and np.any(st["status"] == 2))
+    m["completed"] = bool(np.any(st["status"] == 2)) if len(st) else None  # no follower: not a run that completes
     pe = position_errors(gt, run.estimate)
     if pe is not None:
         m["loc_rmse_m"], m["loc_p95_m"], m["loc_max_m"] = _stats(pe[:, 1])

@@ -162,8 +162,9 @@ def calibration(run: RunData, path: str, title: str) -> bool:
 
 def all_plots(run: RunData, out_dir: str, title: str) -> List[str]:
     made = []
-    trajectory(run, os.path.join(out_dir, "trajectory.png"), title)
-    made.append("trajectory.png")
+    if len(run.ground_truth) or len(run.estimate) or len(run.gps) or run.path is not None or run.map is not None:
+        trajectory(run, os.path.join(out_dir, "trajectory.png"), title)
+        made.append("trajectory.png")  # (nothing to draw: no empty plot)
     for name, fn in (("errors.png", errors), ("control.png", control), ("calibration.png", calibration)):
         if fn(run, os.path.join(out_dir, name), title):
             made.append(name)

@@ -19,12 +19,19 @@ from quadrivio_description.vehicle import load_vehicle
 
 from .. import metrics as M
 from ..plots import all_plots, format_metrics
-from .bag import BagError, read_run
+from .bag import BagError, missing_topics, read_run
 
 
-def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False) -> dict:
+def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False,
+            map_file: str = "") -> dict:
     site, vehicle = load_site(site_file), load_vehicle(vehicle_file)
-    run = read_run(bag, site, vehicle)
+    imap = None
+    if map_file:
+        from quadrivio_description.ros import import_map
+
+        imap = import_map.load(map_file)  # a ConfigError names the file and the key
+    missing = missing_topics(bag, imap)
+    run = read_run(bag, site, vehicle, imap)
     info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
     info = {}
     if os.path.isfile(info_path):
@@ -45,6 +52,9 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     os.replace(tmp, os.path.join(out, "metrics.json"))  # never half-written
     title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
     made = all_plots(run, out, title)
+    if not quiet and missing:
+        print(f"[analyze] {bag} lacks {len(missing)} topic(s) the analysis uses; null or not plotted: "
+              + "; ".join(missing))
     if not quiet:
         print("\n".join(["[analyze] metrics:"] + format_metrics(m)))
         print(f"[analyze] wrote {os.path.join(out, 'metrics.json')} and {', '.join(made)}")
@@ -57,9 +67,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--out", required=True, help="folder for metrics.json and the plots")
     p.add_argument("--site", default="", help="site YAML with the GPS datum (default: quadrivio_description's)")
     p.add_argument("--vehicle", default="", help="vehicle YAML (default: quadrivio_description's)")
+    p.add_argument("--map", default="", metavar="YAML",
+                   help="import mapping of a recording made with other drivers (its gps and state sections)")
     args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
     try:
-        analyze(args.bag, args.out, args.site, args.vehicle)
+        analyze(args.bag, args.out, args.site, args.vehicle, map_file=args.map)
     except (BagError, ConfigError) as exc:
         print(f"analyze: {exc}", file=sys.stderr)
         return 2

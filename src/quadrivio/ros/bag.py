@@ -54,9 +54,42 @@ def _series(rows: List[tuple], names: tuple) -> Series:
     return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
 
 
-def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
+# What is null in metrics.json without each topic (analyze names the missing ones)
+NEEDED_FOR = {
+    "ground_truth": "every error against the truth (localization, prediction, GPS, cross-track)",
+    "estimate": "the localization's errors and plots",
+    "gps": "the GPS's error and fix fraction",
+    "vehicle": "the control plot's measured speed and handlebar",
+    "status": "completed and the follower's progress",
+    "calibration": "the calibration plot",
+}
+
+
+def topics_for(imap=None) -> Dict[str, str]:
+    """The topic of each kind: ours, or for gps and vehicle those of an import mapping."""
+    topics = dict(TOPICS)
+    if imap is not None:
+        for kind, role in (("gps", "gps"), ("vehicle", "state")):
+            if role in imap.sections:
+                topics[kind] = imap.sections[role].topic
+    return topics
+
+
+def missing_topics(path: str, imap=None) -> List[str]:
+    """The kinds of NEEDED_FOR whose topic the bag lacks, as 'topic (what is null)'."""
+    topics = topics_for(imap)
+    bag = open_bag(path, BagError)
+    with bag:
+        have = bag.get_type_and_topic_info().topics
+    return [f"{topics[k]} ({why})" for k, why in NEEDED_FOR.items() if topics[k] not in have]
+
+
+def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> RunData:
+    """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state."""
     import rosbag
 
+    topics = topics_for(imap)
+    role_of = {"gps": "gps", "vehicle": "state"}
     bag = open_bag(path, BagError)
     frame = site.local_frame()
     rows: Dict[str, List[tuple]] = {k: [] for k in TOPICS}
@@ -64,11 +97,13 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams) -> RunData:
     path_poses = None
     goal = None
     grid = None
-    by_topic = {v: k for k, v in TOPICS.items()}
+    by_topic = {v: k for k, v in topics.items()}
     with bag:
         try:
-            for topic, m, _ in read_messages(bag, path, list(TOPICS.values()), error=BagError):
+            for topic, m, t_recv in read_messages(bag, path, list(topics.values()), error=BagError):
                 kind = by_topic[topic]
+                if imap is not None and kind in role_of and role_of[kind] in imap.sections:
+                    m = imap.convert(role_of[kind], m, t_recv)  # a ConfigError names a missing field
                 if kind == "path":
                     path_poses = np.array([(p.pose.position.x, p.pose.position.y, _yaw(p.pose.orientation))
                                            for p in m.poses]) if m.poses else None

@@ -36,9 +36,15 @@ UT = 1e6
 
 
 def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, vehicle, tilt_tau: float,
-                  min_speed: float, period: float) -> Tuple[np.ndarray, dict]:
-    """Levelled horizontal readings [uT], averaged over ``period`` s, taken while moving."""
+                  min_speed: float, period: float, imap=None) -> Tuple[np.ndarray, dict]:
+    """Levelled horizontal readings [uT], averaged over ``period`` s, taken while moving.
+    ``imap``: an import mapping (its topics and conversions replace the three topics)."""
     import rosbag
+
+    if imap is not None:
+        t = imap.topics()
+        mag_topic, imu_topic, state_topic = t.get("mag", mag_topic), t.get("imu", imu_topic), t.get("state", "")
+        role_of = {mag_topic: "mag", imu_topic: "imu", state_topic: "state"}
 
     bag = open_bag(path, MagCalibrationError)
     with bag:
@@ -53,7 +59,9 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         bins: dict = {}
         topics = [mag_topic, imu_topic] + ([state_topic] if use_state else [])
         try:
-            for topic, msg, _ in read_messages(bag, path, topics, error=MagCalibrationError):
+            for topic, msg, t_recv in read_messages(bag, path, topics, error=MagCalibrationError):
+                if imap is not None:
+                    msg = imap.convert(role_of[topic], msg, t_recv)  # a ConfigError names a missing field
                 try:
                     t = msg.header.stamp.to_sec()
                     if topic == state_topic:
@@ -127,8 +135,13 @@ def run(args) -> int:
     field = math.hypot(*h_en)
     p = MagFitParams(min_coverage=args.min_coverage)
     print(f"[calibrate_mag] reading {args.bag}", flush=True)
+    imap = None
+    if args.map:
+        from quadrivio_description.ros import import_map
+
+        imap = import_map.load(args.map)  # a ConfigError names the file and the key
     m, counts = read_levelled(args.bag, args.mag_topic, args.imu_topic, args.state_topic, vehicle, args.tilt_tau,
-                              args.min_speed, args.period)
+                              args.min_speed, args.period, imap)
     print(f"[calibrate_mag] {counts['mag']} magnetometer and {counts['imu']} IMU messages, {counts['state']} "
           f"vehicle states; {counts['used']} readings used" + (" (while moving)" if counts["moving_filter"] else "") +
           (f", {counts['bad']} unusable" if counts["bad"] else ""), flush=True)
@@ -171,6 +184,9 @@ def parse(argv: List[str]) -> argparse.Namespace:
     ap.add_argument("--state-topic", default="/vehicle/state",
                     help="quadrivio_plc/VehicleState: wheel speed, for the turn's acceleration and to use only "
                          "readings taken while moving (optional; default %(default)s)")
+    ap.add_argument("--map", default="", metavar="YAML",
+                    help="import mapping of a recording made with other drivers (its mag, imu and state sections "
+                         "replace the topic options; quadrivio_description.ros.import_map)")
     ap.add_argument("--min-speed", type=float, default=0.3, help="[m/s] use readings above this speed (%(default)s)")
     ap.add_argument("--period", type=float, default=0.1, help="[s] readings are averaged over this (%(default)s)")
     ap.add_argument("--tilt-tau", type=float, default=1.0, help="[s] roll/pitch low-pass, as the smoother (%(default)s)")
