@@ -72,3 +72,24 @@ def test_bicycle_step_straight():
 def test_invalid_angle():
     with pytest.raises(ValueError):
         ackermann_wheel_angles(math.pi / 2, L, T)
+
+
+def test_arc_is_the_bicycle_model_and_clamps_at_the_vehicles_limit():
+    """kinematics.arc (smoother, dead reckoning, and by check_predictor the C++ predictor)
+    agrees with the exact bicycle integration below the limit, and beyond it the wheels
+    turn no further and the calibration's Jacobian column says so."""
+    import numpy as np
+
+    from quadrivio_description.kinematics import arc, compose, max_delta
+    from quadrivio_description.vehicle import load_vehicle
+
+    v = load_vehicle()
+    limit = max_delta(v)
+    assert limit == pytest.approx(v.steering.max_angle * v.steering.ratio)
+    for h in (0.0, 0.1, -0.3):
+        d, _ = arc(0.5, 2.0, h, (1.05, 0.01, 0.97), v.wheelbase, v.steering.ratio, limit)
+        x, y, th = bicycle_step(0.0, 0.0, 0.0, 1.05 * 2.0, 0.97 * v.steering.ratio * (h + 0.01), v.wheelbase, 0.5)
+        assert np.allclose(compose((0.0, 0.0, 0.0), d), (x, y, th), atol=1e-12)
+    d_lim, J = arc(0.5, 2.0, 0.9, (1.0, 0.0, 1.0), v.wheelbase, v.steering.ratio, limit)
+    d_at, _ = arc(0.5, 2.0, limit / v.steering.ratio, (1.0, 0.0, 1.0), v.wheelbase, v.steering.ratio, limit)
+    assert np.allclose(d_lim, d_at) and np.all(J[:, 1:] == 0.0) and np.any(J[:, 0] != 0.0)

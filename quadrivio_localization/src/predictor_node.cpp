@@ -35,6 +35,13 @@ public:
       return;
     }
     nh_.param("/vehicle/steering/ratio", ratio, 1.0);
+    double max_angle = 0.0;
+    if (!nh_.getParam("/vehicle/steering/max_angle", max_angle) || !(max_angle > 0.0))
+    {
+      ROS_FATAL("predictor: /vehicle/steering/max_angle is missing or not positive (load vehicle.yaml into /vehicle)");
+      ros::shutdown();
+      return;
+    }
     pnh_.param("rate", rate_, 50.0);
     pnh_.param("horizon", horizon_, 0.0);
     pnh_.param("max_age", max_age_, 1.0);
@@ -51,7 +58,8 @@ public:
     }
     wheelbase_ = wheelbase;
     ratio_ = ratio;
-    core_.reset(new ql::Predictor(wheelbase, ratio));
+    max_delta_ = max_angle * ratio;
+    core_.reset(new ql::Predictor(wheelbase, ratio, max_delta_));
     pub_ = nh_.advertise<nav_msgs::Odometry>("localization/predicted", 10);
     sub_odom_ = nh_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
     sub_state_ = nh_.subscribe("vehicle/state", 100, &PredictorNode::onState, this);
@@ -123,7 +131,7 @@ private:
       {
         ROS_WARN("predictor: ROS time moved back from %.3f s to %.3f s: forgetting the estimate and readings",
                  last_now_.toSec(), now.toSec());
-        core_.reset(new ql::Predictor(wheelbase_, ratio_));
+        core_.reset(new ql::Predictor(wheelbase_, ratio_, max_delta_));
       }
       last_now_ = now;
       if (!core_->hasEstimate()) return;
@@ -168,7 +176,7 @@ private:
   std::unique_ptr<ql::Predictor> core_;
   std::mutex mutex_;
   double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, max_future_ = 0.5, z_ = 0.0;
-  double wheelbase_ = 1.0, ratio_ = 1.0;
+  double wheelbase_ = 1.0, ratio_ = 1.0, max_delta_ = 1.0;
   ros::Time last_now_;
   unsigned long rejected_ = 0;
   boost::array<double, 36> covariance_{};

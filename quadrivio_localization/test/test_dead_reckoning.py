@@ -8,7 +8,7 @@ from quadrivio_localization.dead_reckoning import DeadReckoning
 
 @pytest.mark.parametrize("bad", [(math.nan, 0.0), (1.0, math.inf), (math.inf, math.nan)])
 def test_a_non_finite_sample_is_skipped(bad):
-    clean, dirty = DeadReckoning(1.25, 1.0), DeadReckoning(1.25, 1.0)
+    clean, dirty = DeadReckoning(1.25, 1.0, 0.42), DeadReckoning(1.25, 1.0, 0.42)
     for k in range(100):
         t = 0.02 * k
         clean.add(t, 1.0, 0.1)

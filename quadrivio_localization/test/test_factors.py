@@ -51,7 +51,7 @@ def test_odometry_jacobians(speed, handlebar):
     v.insert(X(0), gtsam.Pose2(1.0, -2.0, 0.7))
     v.insert(X(1), gtsam.Pose2(1.1, -1.9, 0.75))
     v.insert(K(0), np.array([1.02, 0.01, 0.97]))
-    check_jacobians(F.odometry_factor(UNIT[3], X(0), X(1), K(0), 0.05, speed, handlebar, 1.25, 0.9), v)
+    check_jacobians(F.odometry_factor(UNIT[3], X(0), X(1), K(0), 0.05, speed, handlebar, 1.25, 0.9, 1.4), v)
 
 
 def test_odometry_at_rest_carries_no_heading_information():
@@ -60,13 +60,13 @@ def test_odometry_at_rest_carries_no_heading_information():
     v.insert(X(0), gtsam.Pose2(0.0, 0.0, 0.3))
     v.insert(X(1), gtsam.Pose2(0.01, -0.02, 0.3))
     v.insert(K(0), np.array([1.0, 0.0, 1.0]))
-    A, _ = F.odometry_factor(UNIT[3], X(0), X(1), K(0), 0.05, 0.0, 0.0, 1.25, 0.9).linearize(v).jacobian()
+    A, _ = F.odometry_factor(UNIT[3], X(0), X(1), K(0), 0.05, 0.0, 0.0, 1.25, 0.9, 1.4).linearize(v).jacobian()
     assert np.allclose(A[:2, 2], 0.0)
 
 
 def test_arc_matches_integrated_bicycle():
     L, ratio, calib = 1.25, 0.9, (1.05, 0.02, 0.95)
-    (dx, dy, dth), _ = F.arc(1.0, 2.0, 0.3, calib, L, ratio)
+    (dx, dy, dth), _ = F.arc(1.0, 2.0, 0.3, calib, L, ratio, 1.4)
     x = y = th = 0.0
     n = 100000
     delta = calib[2] * ratio * (0.3 + calib[1])

@@ -10,7 +10,9 @@ handlebar angle ``h``. Used by the simulator (wheel angles), the localization
 from __future__ import annotations
 
 import math
-from typing import Tuple
+from typing import Sequence, Tuple
+
+import numpy as np
 
 
 def ackermann_wheel_angles(delta: float, wheelbase: float, track: float) -> Tuple[float, float]:
@@ -71,3 +73,65 @@ def bicycle_step(x: float, y: float, theta: float, speed: float, delta: float, w
     return (x + r * (math.sin(theta + dtheta) - math.sin(theta)),
             y - r * (math.cos(theta + dtheta) - math.cos(theta)),
             theta + dtheta)
+
+
+def max_delta(vehicle) -> float:
+    """The virtual wheel angle limit [rad]: the handlebar limit times the steering ratio."""
+    return vehicle.steering.max_angle * vehicle.steering.ratio
+
+
+def _f(a: float) -> Tuple[float, float]:
+    """``sin(a) / a`` and its derivative (series near 0)."""
+    if abs(a) < 1e-4:
+        return 1.0 - a * a / 6.0, -a / 3.0
+    return math.sin(a) / a, (a * math.cos(a) - math.sin(a)) / (a * a)
+
+
+def _g(a: float) -> Tuple[float, float]:
+    """``(1 - cos(a)) / a`` and its derivative (series near 0)."""
+    if abs(a) < 1e-4:
+        return a / 2.0, 0.5 - a * a / 8.0
+    return (1.0 - math.cos(a)) / a, (a * math.sin(a) - (1.0 - math.cos(a))) / (a * a)
+
+
+def arc(span: float, speed: float, handlebar: float, calib: Sequence[float], wheelbase: float, ratio: float,
+        limit: float) -> Tuple[np.ndarray, np.ndarray]:
+    """The one bicycle arc of the stack (smoother, dead reckoning; the C++ predictor is held
+    to it by shared test vectors, ``test/data/bicycle_vectors.yaml``).
+
+    Relative motion ``(dx, dy, dtheta)`` of the rear axle over ``span`` s at constant
+    measured ``speed`` and ``handlebar``, with calibration ``(k_v, h_0, k_d)``, and its
+    Jacobian with respect to the calibration::
+
+        s = k_v v T,  delta = clamp(k_d ratio (h + h_0), +-limit),  kappa = tan(delta) / L,
+        dtheta = s kappa,  dx = s sin(dtheta) / dtheta,  dy = s (1 - cos(dtheta)) / dtheta
+
+    ``limit`` is the vehicle's virtual wheel angle limit (:func:`max_delta`): whatever the
+    calibration says, the wheels turn no further (and the Jacobian says so: zero).
+    """
+    k_v, h0, k_d = calib
+    vt = speed * span
+    s = k_v * vt
+    raw = k_d * ratio * (handlebar + h0)
+    delta = max(-limit, min(limit, raw))
+    kappa = math.tan(delta) / wheelbase
+    dth = s * kappa
+    f, df = _f(dth)
+    g, dg = _g(dth)
+    out = np.array([s * f, s * g, dth])
+    dth_kv = vt * kappa  # d/dk_v: ds = vt
+    col_kv = np.array([vt * f + s * df * dth_kv, vt * g + s * dg * dth_kv, dth_kv])
+    if delta != raw:  # clamped: the calibration does not move the wheels
+        col_d = np.zeros(3)
+    else:  # d/d(delta): ds = 0, d(dtheta) = s sec^2(delta) / L
+        dth_d = s / (math.cos(delta) ** 2 * wheelbase)
+        col_d = np.array([s * df * dth_d, s * dg * dth_d, dth_d])
+    J = np.column_stack([col_kv, col_d * k_d * ratio, col_d * ratio * (handlebar + h0)])
+    return out, J
+
+
+def compose(pose: Tuple[float, float, float], d: Sequence[float]) -> Tuple[float, float, float]:
+    """``pose`` moved by the relative motion ``d = (dx, dy, dtheta)`` in its own frame."""
+    x, y, th = pose
+    c, s = math.cos(th), math.sin(th)
+    return x + c * d[0] - s * d[1], y + s * d[0] + c * d[1], th + d[2]

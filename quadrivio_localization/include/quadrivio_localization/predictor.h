@@ -37,7 +37,10 @@ struct ModelCalibration
 class Predictor
 {
 public:
-  Predictor(double wheelbase, double ratio) : L_(wheelbase), ratio_(ratio) {}
+  // max_delta: the virtual wheel angle limit [rad] (handlebar limit x ratio, vehicle.yaml), as
+  // quadrivio_description.kinematics.arc clamps it.
+  Predictor(double wheelbase, double ratio, double max_delta)
+    : L_(wheelbase), ratio_(ratio), max_delta_(max_delta) {}
 
   void setCalibration(const ModelCalibration& c) { cal_ = c; }
   const ModelCalibration& calibration() const { return cal_; }
@@ -68,7 +71,7 @@ public:
   {
     const double v = cal_.speed_scale * speed;
     double delta = cal_.steering_gain * ratio_ * (handlebar + cal_.handlebar_offset);
-    delta = std::max(-1.4, std::min(1.4, delta));
+    delta = std::max(-max_delta_, std::min(max_delta_, delta));
     const double w = v * std::tan(delta) / L_;
     const double dth = w * dt;
     Pose2 out;
@@ -113,13 +116,14 @@ public:
     if (readings_.empty()) return false;
     const Reading& r = readings_.back();
     speed = cal_.speed_scale * r.speed;
-    const double delta = cal_.steering_gain * ratio_ * (r.handlebar + cal_.handlebar_offset);
+    const double delta = std::max(-max_delta_, std::min(max_delta_, cal_.steering_gain * ratio_ *
+                                                                     (r.handlebar + cal_.handlebar_offset)));
     yaw_rate = speed * std::tan(delta) / L_;
     return true;
   }
 
 private:
-  double L_, ratio_;
+  double L_, ratio_, max_delta_;
   double keep_ = 10.0;  // [s] of readings kept
   ModelCalibration cal_;
   std::deque<Reading> readings_;

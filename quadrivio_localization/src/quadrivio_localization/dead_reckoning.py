@@ -7,7 +7,7 @@ import math
 from collections import deque
 from typing import Deque, Optional, Tuple
 
-from quadrivio_description.kinematics import bicycle_step
+from quadrivio_description.kinematics import arc, compose
 
 
 class DeadReckoning:
@@ -17,8 +17,9 @@ class DeadReckoning:
     50 Hz). :meth:`pose_at` interpolates the history for the map -> odom correction.
     """
 
-    def __init__(self, wheelbase: float, ratio: float, history: int = 2000) -> None:
-        self.L, self.ratio = wheelbase, ratio
+    def __init__(self, wheelbase: float, ratio: float, limit: float, history: int = 2000) -> None:
+        """``limit``: the virtual wheel angle limit [rad] (kinematics.max_delta of the vehicle)."""
+        self.L, self.ratio, self.limit = wheelbase, ratio, limit
         self.calib = (1.0, 0.0, 1.0)
         self.t: Optional[float] = None
         self.v = self.h = 0.0
@@ -33,8 +34,8 @@ class DeadReckoning:
             self.rejected += 1
             return self.pose
         if self.t is not None and t > self.t:
-            k_v, h0, k_d = self.calib
-            self.pose = bicycle_step(*self.pose, k_v * self.v, k_d * self.ratio * (self.h + h0), self.L, t - self.t)
+            d, _ = arc(t - self.t, self.v, self.h, self.calib, self.L, self.ratio, self.limit)
+            self.pose = compose(self.pose, d)
         if self.t is None or t >= self.t:
             self.t, self.v, self.h = t, speed, handlebar
             self.history.append((t, *self.pose))

@@ -27,6 +27,8 @@ from typing import Sequence, Tuple
 import gtsam
 import numpy as np
 
+from quadrivio_description import kinematics
+
 
 
 def wrap(a: float) -> float:
@@ -41,50 +43,14 @@ def _rot(theta: float) -> np.ndarray:
 
 # ------------------------------------------------------------------ odometry
 
-def _f(a: float) -> Tuple[float, float]:
-    """``sin(a) / a`` and its derivative (series near 0)."""
-    if abs(a) < 1e-4:
-        return 1.0 - a * a / 6.0, -a / 3.0
-    return math.sin(a) / a, (a * math.cos(a) - math.sin(a)) / (a * a)
-
-
-def _g(a: float) -> Tuple[float, float]:
-    """``(1 - cos(a)) / a`` and its derivative (series near 0)."""
-    if abs(a) < 1e-4:
-        return a / 2.0, 0.5 - a * a / 8.0
-    return (1.0 - math.cos(a)) / a, (a * math.sin(a) - (1.0 - math.cos(a))) / (a * a)
-
-
 def arc(span: float, speed: float, handlebar: float, calib: Sequence[float], wheelbase: float,
-        ratio: float) -> Tuple[np.ndarray, np.ndarray]:
-    """Relative motion ``(dx, dy, dtheta)`` of the rear axle over ``span`` s at constant
-    measured ``speed`` and ``handlebar``, with calibration ``(k_v, h_0, k_d)``, and its
-    Jacobian with respect to the calibration.
-
-    ``s = k_v v T`` (arc length), ``delta = k_d ratio (h + h_0)``, ``kappa = tan(delta) / L``,
-    ``dtheta = s kappa``, ``dx = s sin(dtheta) / dtheta``, ``dy = s (1 - cos(dtheta)) / dtheta``.
-    """
-    k_v, h0, k_d = calib
-    vt = speed * span
-    s = k_v * vt
-    delta = max(-1.4, min(1.4, k_d * ratio * (handlebar + h0)))
-    kappa = math.tan(delta) / wheelbase
-    dth = s * kappa
-    f, df = _f(dth)
-    g, dg = _g(dth)
-    out = np.array([s * f, s * g, dth])
-    # d/dk_v: ds = vt, d(dtheta) = vt kappa
-    dth_kv = vt * kappa
-    col_kv = np.array([vt * f + s * df * dth_kv, vt * g + s * dg * dth_kv, dth_kv])
-    # d/d(delta): ds = 0, d(dtheta) = s sec^2(delta) / L
-    dth_d = s / (math.cos(delta) ** 2 * wheelbase)
-    col_d = np.array([s * df * dth_d, s * dg * dth_d, dth_d])
-    J = np.column_stack([col_kv, col_d * k_d * ratio, col_d * ratio * (handlebar + h0)])
-    return out, J
+        ratio: float, limit: float) -> Tuple[np.ndarray, np.ndarray]:
+    """:func:`quadrivio_description.kinematics.arc` (the one implementation)."""
+    return kinematics.arc(span, speed, handlebar, calib, wheelbase, ratio, limit)
 
 
 def odometry_factor(noise, k0: int, k1: int, kc: int, span: float, speed: float, handlebar: float, wheelbase: float,
-                    ratio: float) -> gtsam.CustomFactor:
+                    ratio: float, limit: float) -> gtsam.CustomFactor:
     """Between ``X_k0`` and ``X_k1`` through calibration ``kc``, from the interval's
     time-averaged wheel speed and handlebar angle (see :func:`arc`).
 
@@ -96,7 +62,7 @@ def odometry_factor(noise, k0: int, k1: int, kc: int, span: float, speed: float,
     """
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
         p0, p1 = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
-        d, Jc = arc(span, speed, handlebar, values.atVector(this.keys()[2]), wheelbase, ratio)
+        d, Jc = arc(span, speed, handlebar, values.atVector(this.keys()[2]), wheelbase, ratio, limit)
         R0, R1 = _rot(p0.theta()), _rot(p1.theta())
         rd = R0 @ d[:2]
         e = np.array([p1.x() - p0.x() - rd[0], p1.y() - p0.y() - rd[1], wrap(p1.theta() - p0.theta() - d[2])])

@@ -42,6 +42,7 @@ import gtsam
 import numpy as np
 
 from quadrivio_description.config import param
+from quadrivio_description.kinematics import max_delta
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 
@@ -203,6 +204,7 @@ class Localizer:
         self.lever_z = vehicle.sensors["gps_link"].xyz[2]
         self.leveller = Leveller(vehicle, p.tilt_tau)
         self.dt = 1.0 / p.rate
+        self.max_delta = max_delta(vehicle)  # [rad] the wheels turn no further, whatever the calibration
         self.states: Deque[Tuple[float, float, float]] = deque(maxlen=20000)  # t, speed, handlebar
         self.gyro: Deque[Tuple[float, float]] = deque(maxlen=20000)  # t, vertical rate [rad/s]
         self.mags: Deque[Tuple[float, float, float]] = deque(maxlen=5000)  # t, levelled m_x, m_y [uT]
@@ -444,12 +446,14 @@ class Localizer:
             span = sum(dt for dt, _, _ in samples)
             speed = sum(dt * v for dt, v, _ in samples) / span
             handlebar = sum(dt * h for dt, _, h in samples) / span
-            (dx, dy, dth), _ = F.arc(span, speed, handlebar, kin, self.v.wheelbase, self.v.steering.ratio)
+            (dx, dy, dth), _ = F.arc(span, speed, handlebar, kin, self.v.wheelbase, self.v.steering.ratio,
+                                     self.max_delta)
             dist = abs(speed) * span * kin[0]
             sxy = math.hypot(nz.odometry_xy, nz.odometry_xy_per_m * dist)
             sth = math.hypot(nz.odometry_theta, nz.odometry_theta_per_m * dist)
             graph.add(F.odometry_factor(gtsam.noiseModel.Diagonal.Sigmas(np.array([sxy, sxy, sth])), X(k0), X(k1),
-                                        K(k0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio))
+                                        K(k0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio,
+                                        self.max_delta))
             guess = prev.compose(gtsam.Pose2(dx, dy, dth))
             self.latest_speed = kin[0] * samples[-1][1]
         else:

@@ -29,6 +29,7 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 
+from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
@@ -80,7 +81,7 @@ class LocalizationNode:
 
     def _fresh_state(self) -> None:
         self.loc = Localizer(self.p, self.vehicle, self.site)
-        self.dr = DeadReckoning(self.vehicle.wheelbase, self.vehicle.steering.ratio)
+        self.dr = DeadReckoning(self.vehicle.wheelbase, self.vehicle.steering.ratio, max_delta(self.vehicle))
         self.estimate = None
         self.last_cal = -math.inf
 
