@@ -174,3 +174,25 @@ def test_out_that_is_a_file_is_refused(recording, tmp_path, capsys):
     out.write_text("x")
     assert main([recording[0], "--out", str(out), "--replay"] + ARGS) == 2
     assert "is a file, not a folder" in capsys.readouterr().err and out.read_text() == "x"
+
+
+def test_unstamped_setpoints_need_no_flag(recording, tmp_path, capsys):
+    """A plain recording: the setpoints' headers were never set (stamp 0), the feedback's
+    were. By default each message is timed by its header where set, else by the bag, and
+    the tool says which topic was timed by the bag; the fit is the stamped recording's."""
+    import json
+
+    path, t, sp_h, sp_v, meas_h, meas_v = recording
+    plain = str(tmp_path / "plain.bag")
+    with rosbag.Bag(path) as src, rosbag.Bag(plain, "w") as dst:
+        for topic, m, at in src.read_messages():
+            if topic == "/ctrl/command":
+                m.header.stamp = rospy.Time(0)
+            dst.write(topic, m, at)
+    assert main([plain, "--out", str(tmp_path / "p"), "--replay", "--loops", "handlebar"] + ARGS) == 0
+    err = capsys.readouterr().err
+    assert "/ctrl/command" in err and "bag's record time" in err and "/ctrl/feedback" not in err
+    assert main([path, "--out", str(tmp_path / "s"), "--replay", "--loops", "handlebar"] + ARGS) == 0
+    a = json.loads((tmp_path / "p" / "calibration.json").read_text())
+    b = json.loads((tmp_path / "s" / "calibration.json").read_text())
+    assert a["loops"]["handlebar"]["replay_rms"] == pytest.approx(b["loops"]["handlebar"]["replay_rms"], rel=1e-6)

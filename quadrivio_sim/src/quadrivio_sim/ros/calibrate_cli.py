@@ -59,7 +59,9 @@ class TopicSpec:
 class BagSpec:
     setpoint: TopicSpec = param(TopicSpec("/vehicle/setpoint/auto", "speed", "handlebar", "brake"))
     measurement: TopicSpec = param(TopicSpec("/vehicle/state", "wheel_speed", "handlebar", ""))
-    stamp: str = param("header", choices=("header", "bag"), doc="time of a message: header.stamp or the bag's")
+    stamp: str = param("auto", choices=("auto", "header", "bag"),
+                       doc="time of a message: header.stamp, the bag's, or auto: the header's where a message has "
+                           "one that is set, else the bag's (unstamped setpoints need no flag)")
 
 
 # ---------------------------------------------------------------- reading
@@ -88,6 +90,7 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
                 have = ", ".join(f"{name} ({info.msg_type})" for name, info in sorted(topics.items())) or "none"
                 raise CalibrationError(f"{path} has no {role} topic {t}; its topics: {have}")
         out: Dict[str, Dict[str, List[float]]] = {"setpoint": {}, "measurement": {}}
+        bag_timed: Dict[str, int] = {}
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
         try:
             for topic, msg, t_bag in read_messages(bag, path, list(by_topic), error=CalibrationError):
@@ -96,10 +99,14 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
                 header = getattr(msg, "header", None)
                 if spec.stamp == "header":
                     if header is None:
-                        raise CalibrationError(f"{topic}: {msg._type} has no header; use --stamp bag")
+                        raise CalibrationError(f"{topic}: {msg._type} has no header; use --stamp bag (or auto)")
                     t = header.stamp.to_sec()
-                else:
+                elif spec.stamp == "auto" and header is not None and not header.stamp.is_zero():
+                    t = header.stamp.to_sec()
+                else:  # bag, or auto without a header stamp: when the recorder got it
                     t = t_bag.to_sec()
+                    if spec.stamp == "auto":
+                        bag_timed[topic] = bag_timed.get(topic, 0) + 1
                 rec.setdefault("t", []).append(t)
                 for name in ("speed", "handlebar", "brake"):
                     fpath = getattr(ts, name)
@@ -107,6 +114,9 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
                         rec.setdefault(name, []).append(_field(msg, fpath, topic))
         except rosbag.ROSBagException as exc:
             raise CalibrationError(f"{path}: corrupt bag ({exc})") from exc
+    for topic, n in bag_timed.items():
+        print(f"[calibrate] {topic}: {n} message(s) without a header stamp timed by the bag's record time "
+              "(its transport delay counts as dead time)", file=sys.stderr)
     arrays = {}
     for role, rec in out.items():
         if len(rec.get("t", [])) < 20:
@@ -315,7 +325,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--measurement-topic", default="", help="default /vehicle/state")
     p.add_argument("--setpoint-fields", default="", help="e.g. speed=speed,handlebar=steer,brake=brake")
     p.add_argument("--measurement-fields", default="", help="e.g. speed=speed,handlebar=steer")
-    p.add_argument("--stamp", default="", choices=("", "header", "bag"), help="message time: header.stamp or bag time")
+    p.add_argument("--stamp", default="", choices=("", "auto", "header", "bag"),
+                   help="message time: header.stamp, bag time, or auto (default: the header's where set, else the bag's)")
     args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
     return run(args)
 
