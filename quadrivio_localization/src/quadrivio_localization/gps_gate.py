@@ -138,6 +138,13 @@ class GpsGate:
     def settled(self) -> bool:
         return self.used >= self.p.settle_fixes
 
+    def unsettle(self) -> None:
+        """The estimate is known to be wrong (a sensor fault found after the fact): use the
+        next ``settle_fixes`` fixes untested, as at the start."""
+        self.used = 0
+        self.burst = None
+        self.rejecting_since = None
+
     def skip(self, reason: str) -> None:
         """Count a fix that never reached the tests (no fix, not finite, too old)."""
         self.counts[reason] += 1

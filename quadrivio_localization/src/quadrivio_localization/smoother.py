@@ -142,7 +142,7 @@ class LocalizerParams:
     use_odometry: bool = param(True)
     wheel_check_rate: float = param(0.05, lo=0.0, hi=10.0, unit="rad/s",
                                     doc="a wheel speed of 0 while the gyro's yaw rate is above this...")
-    wheel_check_time: float = param(0.5, lo=0.0, hi=60.0, unit="s",
+    wheel_check_time: float = param(0.3, lo=0.0, hi=60.0, unit="s",
                                     doc="...for this long is a dead wheel-speed channel: odometry ignored (0: never)")
     mag_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="magnetometer factors per second (readings averaged)")
     calibrate: bool = param(True, doc="estimate the calibration online (false: hold the priors' means)")
@@ -516,6 +516,9 @@ class Localizer:
             self.wheel_suspect = 0.0
         if self.wheel_suspect >= p.wheel_check_time - 1e-9:
             self.wheel_fault_since = t
+            # The last wheel_check_time s of odometry said "standing" and the estimate believed
+            # it, covariance included: the gate must not judge the fixes by it.
+            self.gate.unsettle()
             self.events.append(f"wheel speed reads 0 at {t:.2f} s while the gyro says the vehicle turns: "
                                "odometry ignored until it reads motion again")
             return True
@@ -574,8 +577,12 @@ class Localizer:
             if k < self.oldest_k:
                 self.gate.skip(TOO_OLD)
                 continue
-            # Wait for the group: a later fix beyond it, or group_wait of silence after it.
-            if g.group > 0.0 and newest_fix < t + g.group - 1e-9 and self.latest_t < t + g.group + g.group_wait:
+            # Wait for the group: a later fix beyond it, or group_wait of silence after it. Not
+            # without odometry: the fixes are then all there is, and waiting leaves the newest
+            # keyframes to a guess (the group test uses the fixes already in).
+            blind = self.no_odometry_t >= self._t(self.k) - g.group
+            if (g.group > 0.0 and not blind and newest_fix < t + g.group - 1e-9
+                    and self.latest_t < t + g.group + g.group_wait):
                 keep.append(self.gps_pending[i])
                 continue
             inn = innovation(i)
