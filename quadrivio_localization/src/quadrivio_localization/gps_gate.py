@@ -18,11 +18,14 @@ Two tests, each by its own reason:
 * **multipath** -- a fix and the fixes of the next ``group`` seconds, together: their mean
   innovation against ``P + mean(R) / n``. A burst shows as a sustained offset that single
   fixes of a noisy receiver hide (a 7 m offset under 1.5 m of white noise is a 2-sigma
-  fix, but 4 such fixes in a row are a 9-sigma mean). The test looks ahead: a fix is decided
+  fix, but 4 such fixes in a row are a 9-sigma mean). Only where it sees smaller offsets
+  than the jump test (:meth:`GpsGate.lookahead_worth`: noisy receivers) does the test
+  look ahead: a fix is decided
   once the fixes ``group`` seconds after it are in (the smoother's window is longer), so the
   first fix of a burst is judged with the burst. It looks back too: a fix whose previous
   ``group`` seconds are inconsistent and which sits with them rather than with the estimate
-  is a burst's tail (its look-ahead group, mostly clean fixes, would hide it). The test
+  is a burst's tail (its look-ahead group, mostly clean fixes, would hide it), when the
+  fix before it was rejected as multipath (a burst's start was caught). The test
   needs no state of its own: nothing can stay "in a burst" across an outage.
 
 * **jump** (also counted as multipath) -- a fix against the previous one (at most
@@ -127,6 +130,7 @@ class GpsGate:
         self.counts: Dict[str, int] = {r: 0 for r in REASONS}
         self.yielded = 0
         self.last_d2 = math.nan  # of the latest decided fix (diagnostics)
+        self.last_reason = ""  # of the latest decided fix ("" when used)
         self.burst: Optional[np.ndarray] = None  # offset of the suspected burst so far [m]
         self.burst_R0 = np.zeros((2, 2))  # covariance of the last fix before the burst
         self.burst_Q = np.zeros((2, 2))  # of the estimated antenna's motion since
@@ -137,6 +141,18 @@ class GpsGate:
     @property
     def settled(self) -> bool:
         return self.used >= self.p.settle_fixes
+
+    def lookahead_worth(self, P: np.ndarray, R: np.ndarray, n: int) -> bool:
+        """Whether waiting for the look-ahead group can catch a burst the jump test cannot:
+        the smallest offset the group test sees (``group_gate`` over ``P + R / n``) against
+        the smallest the jump test sees (``jump_gate`` over two fixes' ``2 R``). A precise
+        receiver's bursts are jumps of many sigmas: waiting would only delay its fixes (and
+        the newest estimate would ride a second on odometry for nothing)."""
+        if not self.settled or self.p.group <= 0.0:
+            return False
+        d_group = self.p.group_gate * float(np.max(np.linalg.eigvalsh(P + R / max(1, n))))
+        d_jump = self.p.jump_gate * float(np.min(np.linalg.eigvalsh(2.0 * R)))
+        return d_group < d_jump
 
     def unsettle(self) -> None:
         """The estimate is known to be wrong (a sensor fault found after the fact): use the
@@ -174,6 +190,7 @@ class GpsGate:
             self.used += 1
         else:
             self.counts[verdict.reason] += 1
+        self.last_reason = verdict.reason
         self.last_d2 = verdict.d2
         return verdict
 
@@ -219,9 +236,11 @@ class GpsGate:
             if d2a > self.p.group_gate:  # a burst begins here or goes on
                 return Verdict(False, MULTIPATH, d2a)
             worst = max(worst, d2a)
-        if behind:
+        if behind and self.last_reason == MULTIPATH:
             # A burst's last fixes have clean fixes ahead of them: look back too, and reject
-            # a fix that sits with an inconsistent past rather than with the estimate.
+            # a fix that sits with an inconsistent past rather than with the estimate. Only
+            # inside a burst whose start was caught (the previous fix was rejected as one):
+            # a sustained offset without such a start is the estimate's error, not multipath.
             d2b, mean_b = self._group_d2(nu, P, R, behind)
             if d2b > self.p.group_gate and mahalanobis2(nu - mean_b, R) < mahalanobis2(nu, R):
                 return Verdict(False, MULTIPATH, d2b)

@@ -493,7 +493,7 @@ class Localizer:
             # keyframes to a guess (the group test uses the fixes already in).
             blind = self.no_odometry_t >= self._t(self.k) - g.group
             if (g.group > 0.0 and not blind and newest_fix < t + g.group - 1e-9
-                    and self.latest_t < t + g.group + g.group_wait):
+                    and self.latest_t < t + g.group + g.group_wait and self._lookahead_worth(t, ve, vn, values)):
                 keep.append(self.gps_pending[i])
                 continue
             inn = innovation(i)
@@ -535,6 +535,14 @@ class Localizer:
                 graph.add(F.gps_factor(noise, X(k), G(k), zc, self.lever))
                 self.counters.gps_used += 1
         self.gps_pending = keep
+
+    def _lookahead_worth(self, t: float, ve: float, vn: float, values: gtsam.Values) -> bool:
+        """GpsGate.lookahead_worth for this fix, with the group's size from the recent fix rate."""
+        pose = self._pose(self.k, values)
+        if pose is None:
+            return False
+        n = 1 + sum(1 for d in self.decided if d[0] > t - self.p.gps_gate.group - 1e-9)
+        return self.gate.lookahead_worth(self._antenna_cov(pose), np.diag([ve, vn]), n)
 
     def _antenna_cov(self, pose: gtsam.Pose2) -> np.ndarray:
         """Covariance of the estimated antenna position plus drift, map axes: the newest
