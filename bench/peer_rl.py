@@ -261,7 +261,6 @@ class PeerRun:
         period = 1.0 / self.frequency
         i = 0
         steps = int(round(t_end / dt))
-        expected = 0
         for k in range(1, steps + 1):
             t = k * dt
             while i < len(events) and events[i][0] <= t + 1e-9:
@@ -271,7 +270,6 @@ class PeerRun:
             pub_clock.publish(clock)
             if abs(t / period - round(t / period)) < 1e-6 and t > 2 * period:
                 # wait for the output of the filter period that just ended (once the filter runs)
-                expected += 1
                 with lock:
                     if outputs:
                         ok = lock.wait_for(lambda: outputs[-1][0] >= t - period - 1e-6, timeout=2.0)
