@@ -7,6 +7,12 @@ taken out: ``dv/dt`` ahead and ``v * yaw rate`` to the left (without this, every
 would look like a roll and leak the large vertical field into the levelled
 magnetometer). The smoother and the magnetometer calibration share this class, so a
 calibration is fitted to exactly the readings the smoother will see.
+
+Only samples whose specific force is within ``GRAVITY_BAND`` of 1 g say where gravity is:
+a driver starting up (zeros, or a filter ramping up from them), a vehicle dropping onto
+its suspension, a shock on rough ground do not. The first accepted samples are averaged
+with equal weight until ``tau`` has passed, so one early sample does not set the tilt
+for seconds.
 """
 
 from __future__ import annotations
@@ -26,6 +32,10 @@ def lowpass(prev: Optional[float], value: float, t_prev: Optional[float], t: flo
     return a * prev + (1.0 - a) * value
 
 
+G = 9.80665  # [m/s^2]
+GRAVITY_BAND = 0.3  # a sample whose |specific force| is more than this fraction off 1 g leaves the tilt as it is
+
+
 class Leveller:
     """Feed wheel speeds and IMU samples in time order; level gyro and magnetometer readings."""
 
@@ -34,7 +44,10 @@ class Leveller:
         self.mag_mount = vehicle.sensors["mag_link"].rpy
         self.tau = tilt_tau
         self.roll = self.pitch = 0.0
-        self.t: Optional[float] = None
+        self.t: Optional[float] = None  # time of the newest sample that set the tilt
+        self.t0: Optional[float] = None  # time of the first such sample
+        self.n = 0  # samples that set the tilt
+        self.rejected = 0  # samples not near 1 g
         self._speeds: list = []  # the last two (t, v)
 
     def add_speed(self, t: float, v: float) -> None:
@@ -52,10 +65,22 @@ class Leveller:
         """Update the tilt from one IMU sample; returns the yaw rate about the vertical [rad/s]."""
         fb, wb = rotate(self.imu_mount, f), rotate(self.imu_mount, w)
         v, dv = self.speed_and_accel()
-        r, p = tilt_from_gravity((fb[0] - dv, fb[1] - v * wb[2], fb[2]))
-        first = self.t is None
-        self.roll = lowpass(None if first else self.roll, r, self.t, t, self.tau)
-        self.pitch = lowpass(None if first else self.pitch, p, self.t, t, self.tau)
+        g = (fb[0] - dv, fb[1] - v * wb[2], fb[2])
+        if abs(math.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2) / G - 1.0) > GRAVITY_BAND:
+            self.rejected += 1
+            return level(self.roll, self.pitch, wb)[2]
+        r, p = tilt_from_gravity(g)
+        if self.t is None:
+            self.t0 = t
+        self.n += 1
+        if self.tau <= 0.0 or self.t is None:
+            a = 1.0
+        else:
+            a = 1.0 - math.exp(-max(0.0, t - self.t) / self.tau)
+            if t - self.t0 < self.tau:  # still the mean of the samples so far
+                a = max(a, 1.0 / self.n)
+        self.roll += a * (r - self.roll)
+        self.pitch += a * (p - self.pitch)
         self.t = t
         return level(self.roll, self.pitch, wb)[2]
 
