@@ -367,6 +367,88 @@ Word cheapest(double x, double y, double phi, double rc)
 }
 }  // namespace rs
 
+// ---------------------------------------------------------------------------
+// Dubins words (forwards only): LSL, RSR, RSL, LSR, RLR, LRL, the shortest kept; the same
+// formulas as OMPL's DubinsStateSpace and quadrivio_navigation/curves.py. Ours because
+// Debian's libompl is built with assertions on, and OMPL's dubinsLSR asserts a
+// round-off bound that some pose pairs miss: one such pair aborted the whole process
+// (about 1 run in 20 of the forward-only planner test).
+namespace dubins
+{
+double m2pi(double x)  // to [0, 2 pi)
+{
+    return x - kTwoPi * std::floor(x / kTwoPi);
+}
+
+void consider(rs::Word &best, const char *letters, double t, double p, double q)
+{
+    double cost = t + p + q;
+    if (!(cost < best.cost))
+        return;
+    best.n = 3;
+    best.cost = cost;
+    for (int i = 0; i < 3; ++i)
+        best.kind[i] = letters[i];
+    best.len[0] = t;
+    best.len[1] = p;
+    best.len[2] = q;
+}
+
+// The shortest word from (0, 0, th0) to (dx, dy, th1), lengths in units of the radius.
+rs::Word shortest(double dx, double dy, double th0, double th1)
+{
+    const double zero = -1e-7;  // OMPL's DUBINS_ZERO: a straight of length 0 is a word too
+    double d = std::hypot(dx, dy);
+    double th = d > 1e-12 ? std::atan2(dy, dx) : 0.0;
+    double a = m2pi(th0 - th), b = m2pi(th1 - th);
+    double sa = std::sin(a), sb = std::sin(b), ca = std::cos(a), cb = std::cos(b), cab = std::cos(a - b);
+    rs::Word best;
+    double tmp = 2. + d * d - 2. * cab + 2. * d * (sa - sb);
+    if (tmp >= zero)
+    {
+        double theta = std::atan2(cb - ca, d + sa - sb);
+        consider(best, "LSL", m2pi(theta - a), std::sqrt(std::max(tmp, 0.)), m2pi(b - theta));
+    }
+    tmp = 2. + d * d - 2. * cab + 2. * d * (sb - sa);
+    if (tmp >= zero)
+    {
+        double theta = std::atan2(ca - cb, d - sa + sb);
+        consider(best, "RSR", m2pi(a - theta), std::sqrt(std::max(tmp, 0.)), m2pi(theta - b));
+    }
+    tmp = d * d - 2. + 2. * cab - 2. * d * (sa + sb);
+    if (tmp >= zero)
+    {
+        double p = std::sqrt(std::max(tmp, 0.));
+        double theta = std::atan2(ca + cb, d - sa - sb) - std::atan2(2., p);
+        consider(best, "RSL", m2pi(a - theta), p, m2pi(b - theta));
+    }
+    tmp = -2. + d * d + 2. * cab + 2. * d * (sa + sb);
+    if (tmp >= zero)
+    {
+        double p = std::sqrt(std::max(tmp, 0.));
+        double theta = std::atan2(-ca - cb, d + sa + sb) - std::atan2(-2., p);
+        consider(best, "LSR", m2pi(theta - a), p, m2pi(theta - b));
+    }
+    tmp = (6. - d * d + 2. * cab + 2. * d * (sa - sb)) / 8.;
+    if (std::fabs(tmp) <= 1.)
+    {
+        double p = m2pi(kTwoPi - std::acos(tmp));
+        double theta = std::atan2(ca - cb, d - sa + sb);
+        double t = m2pi(a - theta + .5 * p);
+        consider(best, "RLR", t, p, m2pi(a - b - t + p));
+    }
+    tmp = (6. - d * d + 2. * cab + 2. * d * (sb - sa)) / 8.;
+    if (std::fabs(tmp) <= 1.)
+    {
+        double p = m2pi(kTwoPi - std::acos(tmp));
+        double theta = std::atan2(ca - cb, d + sa - sb);
+        double t = m2pi(-a - theta + .5 * p);
+        consider(best, "LRL", t, p, m2pi(b - a - t + p));
+    }
+    return best;
+}
+}  // namespace dubins
+
 // SE(2) with weighted Reeds-Shepp curves as motions: distance is the curve's cost
 // (reverse parts counted reverse_cost times), interpolation follows that curve. Not
 // symmetric once reverse_cost > 1: the same curve driven the other way swaps forward and
@@ -453,6 +535,79 @@ private:
     double rho_, rc_;
 };
 
+// SE(2) with Dubins curves as motions (forwards only), on our own word computation (see
+// namespace dubins). Not symmetric: the curve from b to a is another one.
+class DubinsSpace : public ob::SE2StateSpace
+{
+public:
+    explicit DubinsSpace(double rho) : rho_(rho)
+    {
+        setName("QvDubins" + getName());
+    }
+
+    rs::Word word(const ob::State *a, const ob::State *b) const
+    {
+        auto *s1 = a->as<StateType>();
+        auto *s2 = b->as<StateType>();
+        return dubins::shortest((s2->getX() - s1->getX()) / rho_, (s2->getY() - s1->getY()) / rho_, s1->getYaw(),
+                                s2->getYaw());
+    }
+
+    double distance(const ob::State *a, const ob::State *b) const override
+    {
+        return rho_ * word(a, b).cost;
+    }
+
+    bool isMetricSpace() const override
+    {
+        return false;
+    }
+
+    bool hasSymmetricDistance() const override
+    {
+        return false;
+    }
+
+    bool hasSymmetricInterpolate() const override
+    {
+        return false;
+    }
+
+    void interpolate(const ob::State *from, const ob::State *to, double t, ob::State *state) const override
+    {
+        if (t >= 1.0)
+        {
+            copyState(state, to);
+            return;
+        }
+        rs::Word w = word(from, to);
+        double target = t * w.cost, acc = 0.0;
+        auto *s0 = from->as<StateType>();
+        double x = s0->getX(), y = s0->getY(), th = s0->getYaw();
+        for (int i = 0; i < w.n && target > acc; ++i)
+        {
+            double part = std::min(w.len[i], target - acc);
+            advance(x, y, th, w.kind[i], part * rho_, rho_);
+            acc += w.len[i];
+        }
+        auto *out = state->as<StateType>();
+        out->setXY(x, y);
+        out->setYaw(wrap(th));
+    }
+
+    void sanityChecks() const override
+    {
+        double zero = std::numeric_limits<double>::epsilon();
+        double eps = .1;
+        int flags = ~(ob::StateSpace::STATESPACE_INTERPOLATION | ob::StateSpace::STATESPACE_TRIANGLE_INEQUALITY |
+                      ob::StateSpace::STATESPACE_DISTANCE_BOUND | ob::StateSpace::STATESPACE_DISTANCE_SYMMETRIC);
+        ob::StateSpace::sanityChecks(zero, eps, flags);
+    }
+
+private:
+    double rho_;
+};
+
 // One curve between two states as segments (kind 'L', 'S', 'R'; signed length in m).
 struct Segments
 {
@@ -465,30 +620,13 @@ Segments curveSegments(const ob::StateSpacePtr &space, bool reverse, double rho,
                        const ob::State *b)
 {
     Segments out;
-    if (reverse)
+    rs::Word w = reverse ? space->as<WeightedReedsSheppStateSpace>()->word(a, b) : space->as<DubinsSpace>()->word(a, b);
+    for (int i = 0; i < w.n; ++i)
     {
-        rs::Word w = space->as<WeightedReedsSheppStateSpace>()->word(a, b);
-        for (int i = 0; i < w.n; ++i)
-        {
-            if (std::fabs(w.len[i]) < 1e-12)
-                continue;
-            out.kind[out.n] = w.kind[i];
-            out.len[out.n++] = w.len[i] * rho;
-        }
-    }
-    else
-    {
-        auto *ds = space->as<ob::DubinsStateSpace>();
-        auto p = ds->dubins(a, b);
-        for (int i = 0; i < 3; ++i)
-        {
-            if (p.length_[i] < 1e-12)
-                continue;
-            out.kind[out.n] = p.type_[i] == ob::DubinsStateSpace::DUBINS_LEFT ?
-                                  'L' :
-                                  (p.type_[i] == ob::DubinsStateSpace::DUBINS_RIGHT ? 'R' : 'S');
-            out.len[out.n++] = p.length_[i] * rho;
-        }
+        if (std::fabs(w.len[i]) < 1e-12)
+            continue;
+        out.kind[out.n] = w.kind[i];
+        out.len[out.n++] = w.len[i] * rho;
     }
     return out;
 }
@@ -744,6 +882,18 @@ double qv_weighted_rs_cost(double x0, double y0, double th0, double x1, double y
     return space->distance(a.get(), b.get());
 }
 
+// Length of the Dubins curve the planner uses (DubinsSpace), for cross-checks.
+double qv_dubins_length(double x0, double y0, double th0, double x1, double y1, double th1, double rho)
+{
+    auto space = std::make_shared<DubinsSpace>(rho);
+    ob::ScopedState<ob::SE2StateSpace> a(space), b(space);
+    a->setXY(x0, y0);
+    a->setYaw(th0);
+    b->setXY(x1, y1);
+    b->setYaw(th1);
+    return space->distance(a.get(), b.get());
+}
+
 // OMPL's Reeds-Shepp (reverse != 0) or Dubins distance between two poses, for cross-checks.
 double qv_curve_length(double x0, double y0, double th0, double x1, double y1, double th1, double rho, int reverse)
 {
@@ -763,12 +913,11 @@ double qv_curve_length(double x0, double y0, double th0, double x1, double y1, d
 // time s, simplification time s, cost, length m, states in the planner's data, first
 // solution's cost]. Returns 0 on success, 1 when no path was found (msg says why), 2 on
 // bad arguments.
-int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
-                 double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
-                 double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
-                 const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
+static int plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
+                double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
+                double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
+                const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
 {
-    std::lock_guard<std::mutex> lock(g_plan_mutex);
     auto *map = static_cast<Map *>(map_handle);
     if (!map || !planner_name || !start || !goal || !out_n || !stats || !(turning_radius > 0) ||
         !(budget > 0) || !(sample_step > 0))
@@ -780,7 +929,7 @@ int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const cha
         stats[i] = std::numeric_limits<double>::quiet_NaN();
     const double rho = turning_radius;
     ob::StateSpacePtr space = reverse ? ob::StateSpacePtr(new WeightedReedsSheppStateSpace(rho, reverse_cost)) :
-                                        ob::StateSpacePtr(new ob::DubinsStateSpace(rho));
+                                        ob::StateSpacePtr(new DubinsSpace(rho));
     ob::RealVectorBounds bounds(2);
     bounds.setLow(0, 0.0);
     bounds.setHigh(0, map->width * map->res);
@@ -973,6 +1122,26 @@ int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const cha
     *out_n = (int)np;
     map->last.swap(poses);
     return 0;
+}
+
+int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
+                 double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
+                 double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
+                 const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
+{
+    std::lock_guard<std::mutex> lock(g_plan_mutex);
+    // No C++ exception may cross into the Python caller: it would end the process.
+    try
+    {
+        return plan(map_handle, turning_radius, reverse, planner_name, budget, simplify, range, check_resolution,
+                    stop_at_first, reverse_cost, cost_weight, seed, start, goal, sample_step, cancel, out_n, stats, msg,
+                    msg_len);
+    }
+    catch (const std::exception &e)
+    {
+        setMessage(msg, msg_len, std::string("OMPL failed: ") + e.what());
+        return 2;
+    }
 }
 
 // Copy the last plan's poses (4 doubles each) into out, at most cap poses; returns how many.

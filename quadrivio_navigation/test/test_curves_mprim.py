@@ -54,6 +54,8 @@ def test_python_curves_match_ompl():
     for a, b in random_poses(300, seed=3):
         for rev in (True, False):
             assert C.path_length(C.shortest_path(a, b, R, rev)) == pytest.approx(O.curve_length(a, b, R, rev), abs=1e-9)
+        # the planner's own Dubins space (OMPL's asserts on round-off: see ompl_core.cpp)
+        assert C.path_length(C.dubins(a, b, R)) == pytest.approx(O.dubins_length(a, b, R), abs=1e-9)
         x, y, phi = C.relative_goal(a, b)
         assert C.rs_cost(x, y, phi, R, 3.0) == pytest.approx(O.weighted_rs_cost(a, b, R, 3.0), abs=1e-9)
 

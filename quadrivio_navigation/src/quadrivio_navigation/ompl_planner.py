@@ -75,6 +75,8 @@ def load_library():
         lib.qv_map_pose_cost.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_double]
         lib.qv_curve_length.restype = ctypes.c_double
         lib.qv_curve_length.argtypes = [ctypes.c_double] * 7 + [ctypes.c_int]
+        lib.qv_dubins_length.restype = ctypes.c_double
+        lib.qv_dubins_length.argtypes = [ctypes.c_double] * 7
         lib.qv_weighted_rs_cost.restype = ctypes.c_double
         lib.qv_weighted_rs_cost.argtypes = [ctypes.c_double] * 8
         lib.qv_ompl_plan.restype = ctypes.c_int
@@ -100,6 +102,11 @@ def version() -> str:
 def curve_length(a, b, r: float, reverse: bool) -> float:
     """OMPL's Reeds-Shepp (or Dubins) distance between two poses (for cross-checks)."""
     return load_library().qv_curve_length(*map(float, a), *map(float, b), float(r), int(reverse))
+
+
+def dubins_length(a, b, r: float) -> float:
+    """The C++ core's own Dubins distance, the one its forward-only planner uses (for cross-checks)."""
+    return load_library().qv_dubins_length(*map(float, a), *map(float, b), float(r))
 
 
 def weighted_rs_cost(a, b, r: float, reverse_cost: float) -> float:
