@@ -32,7 +32,6 @@ by reason. Every factor's model is in :mod:`quadrivio_localization.factors`.
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -52,6 +51,7 @@ from .params import CalibrationPriors, LocalizerParams, MagCalibration, NoisePar
 # The parameters moved to .params; importing them from here keeps working.
 __all__ = ["Localizer", "Estimate", "Counters", "CALIBRATION_NAMES", "CalibrationPriors", "LocalizerParams",
            "MagCalibration", "NoiseParams", "Prior"]
+from .buffers import SampleBuffer
 from .leveling import Leveller, lowpass
 
 X = gtsam.symbol_shorthand.X  # poses
@@ -116,8 +116,8 @@ class Localizer:
         self.leveller = Leveller(vehicle, p.tilt_tau)
         self.dt = 1.0 / p.rate
         self.max_delta = max_delta(vehicle)  # [rad] the wheels turn no further, whatever the calibration
-        self.states: Deque[Tuple[float, float, float]] = deque(maxlen=20000)  # t, speed, handlebar
-        self.gyro: Deque[Tuple[float, float]] = deque(maxlen=20000)  # t, vertical rate [rad/s]
+        self.states: SampleBuffer[Tuple[float, float]] = SampleBuffer()  # speed [m/s], handlebar [rad]
+        self.gyro: SampleBuffer[float] = SampleBuffer()  # vertical rate [rad/s]
         self.mags: Deque[Tuple[float, float, float]] = deque(maxlen=5000)  # t, levelled m_x, m_y [uT]
         self.gps_pending: List[Tuple[float, np.ndarray, float, float, int]] = []  # t, enu, white var e, n, status
         self.gate = GpsGate(p.gps_gate)
@@ -145,10 +145,9 @@ class Localizer:
         if not _finite(t, speed, handlebar):
             self.counters.bad_input += 1
             return
-        if self.states and t < self.states[-1][0]:
+        if not self.states.append(t, (speed, handlebar)):
             self.counters.out_of_order += 1
             return
-        self.states.append((t, speed, handlebar))
         self.leveller.add_speed(t, speed)
         self.latest_t = max(self.latest_t, t)
 
@@ -156,10 +155,10 @@ class Localizer:
         if not _finite(t, *f, *w):
             self.counters.bad_input += 1
             return
-        if self.gyro and t < self.gyro[-1][0]:
+        if self.gyro and t < self.gyro.last_t:
             self.counters.out_of_order += 1
             return
-        self.gyro.append((t, self.leveller.add_imu(t, f, w)))
+        self.gyro.append(t, self.leveller.add_imu(t, f, w))
         self.latest_t = max(self.latest_t, t)
 
     def add_mag(self, t: float, m: Tuple[float, float, float]) -> None:
@@ -197,47 +196,21 @@ class Localizer:
     def _samples(self, t0: float, t1: float) -> List[Tuple[float, float, float]]:
         """Piecewise-constant ``(dt, speed, handlebar)`` over ``[t0, t1]`` from the states;
         none when ``t1`` is more than ``odometry_hold`` past the newest state."""
-        if not self.states or t1 > self.states[-1][0] + self.p.odometry_hold + 1e-9:
+        if not self.states or t1 > self.states.last_t + self.p.odometry_hold + 1e-9:
             return []
-        times = [s[0] for s in self.states]
-        i = bisect.bisect_right(times, t0) - 1
-        if i < 0:
-            return []
-        out, t = [], t0
-        while t < t1 - 1e-12:
-            _, v, h = self.states[i]
-            t_next = self.states[i + 1][0] if i + 1 < len(self.states) else t1
-            seg_end = min(t1, max(t_next, t))
-            if seg_end > t:
-                out.append((seg_end - t, v, h))
-            t = seg_end
-            i += 1
-            if i >= len(self.states):
-                if t < t1:
-                    out.append((t1 - t, v, h))
-                break
-        return out
+        return [(dt, v, h) for dt, (v, h) in self.states.pieces(t0, t1)]
 
     def _gyro_integral(self, t0: float, t1: float) -> Optional[float]:
-        times = [g[0] for g in self.gyro]
-        i = bisect.bisect_right(times, t0) - 1
-        if i < 0 or times[-1] < t1 - 0.5 * self.dt:
+        if not self.gyro or self.gyro.last_t < t1 - 0.5 * self.dt:
             return None
-        total, t = 0.0, t0
-        while t < t1 - 1e-12 and i < len(self.gyro):
-            t_next = self.gyro[i + 1][0] if i + 1 < len(self.gyro) else t1
-            seg = min(t1, max(t_next, t)) - t
-            total += self.gyro[i][1] * seg
-            t += seg
-            i += 1
-        return total
+        return self.gyro.integral(t0, t1)
 
     def _covered(self, t1: float, now: float) -> bool:
         """Whether the odometry and the gyro have data up to ``t1`` (or waiting is over)."""
         if now - t1 >= self.p.max_wait:
             return True
-        ok_states = not self.p.use_odometry or (self.states and self.states[-1][0] >= t1 - 1e-9)
-        ok_gyro = not self.p.use_gyro or (self.gyro and self.gyro[-1][0] >= t1 - 1e-9)
+        ok_states = not self.p.use_odometry or (self.states and self.states.last_t >= t1 - 1e-9)
+        ok_gyro = not self.p.use_gyro or (self.gyro and self.gyro.last_t >= t1 - 1e-9)
         return bool(ok_states and ok_gyro)
 
     def _vector(self, key: int, values: gtsam.Values) -> np.ndarray:
@@ -590,9 +563,9 @@ class Localizer:
 
     def _at_rest(self, t0: float, t1: float) -> bool:
         """Whether the wheel speed stayed below ``REST_SPEED`` over ``[t0, t1]`` (false without odometry)."""
-        if not self.p.use_odometry or not self.states or self.states[-1][0] < t1:
+        if not self.p.use_odometry or not self.states or self.states.last_t < t1:
             return False
-        inside = [abs(v) for t, v, _ in self.states if t0 - 0.1 <= t <= t1]
+        inside = [abs(v) for v, _ in self.states.between(t0 - 0.1, t1)]
         return bool(inside) and max(inside) < self.REST_SPEED
 
     def _mag_noise(self, n_readings: int):
@@ -604,10 +577,8 @@ class Localizer:
     def _trim(self, now: float) -> None:
         """Forget sensor data older than the window."""
         horizon = now - self.p.lag - 1.0
-        while len(self.states) > 2 and self.states[1][0] < horizon:
-            self.states.popleft()
-        while len(self.gyro) > 2 and self.gyro[1][0] < horizon:
-            self.gyro.popleft()
+        self.states.trim(horizon)
+        self.gyro.trim(horizon)
         while self.mags and self.mags[0][0] < horizon:
             self.mags.popleft()
         self.gps_pending = [g for g in self.gps_pending if g[0] >= horizon]
