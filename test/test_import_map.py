@@ -143,7 +143,7 @@ def test_without_the_mapping_the_foreign_bag_is_refused(twins, capsys):
     ({"imu": {"axes": ["x", "y", "y"]}}, "must use each of x, y, z once"),
     ({"gps": {"std": None}}, "must be a finite number"),
     ({"state": {"wheel_speed": {"field": "vector.x", "gain": 2}}}, "{field: NAME, scale: S, offset: O}"),
-    ({"gps": {"stamp": "gps_time"}}, "header or receipt"),
+    ({"gps": {"stamp": "gps_time"}}, "header, receipt or auto"),
     ({"odometry": {"topic": "/odom"}}, "unknown section(s) odometry"),
 ])
 def test_bad_mappings_are_named(tmp_path, twins, change, message):

@@ -196,3 +196,39 @@ def test_unstamped_setpoints_need_no_flag(recording, tmp_path, capsys):
     a = json.loads((tmp_path / "p" / "calibration.json").read_text())
     b = json.loads((tmp_path / "s" / "calibration.json").read_text())
     assert a["loops"]["handlebar"]["replay_rms"] == pytest.approx(b["loops"]["handlebar"]["replay_rms"], rel=1e-6)
+
+
+def test_an_import_mapping_reads_raw_units(recording, tmp_path, capsys):
+    """A PLC that logs raw units (mm/s, 1e-4 rad with the opposite sign, brake in percent)
+    and unstamped commands: through the same import mapping replay and analyze use (its
+    setpoint and state sections), the replay of the recording is the SI recording's."""
+    path, t, sp_h, sp_v, meas_h, meas_v = recording
+    raw = str(tmp_path / "raw.bag")
+    with rosbag.Bag(path) as src, rosbag.Bag(raw, "w") as dst:
+        for topic, m, at in src.read_messages():
+            m.speed, m.steer = m.speed * 1000.0, -m.steer * 1e4
+            if topic == "/ctrl/command":
+                m.header.stamp = rospy.Time(0)
+                m.brake *= 100.0
+            dst.write(topic, m, at)
+    mapping = {"setpoint": {"topic": "/ctrl/command", "stamp": "auto", "speed": {"field": "speed", "scale": 1e-3},
+                            "handlebar": {"field": "steer", "scale": -1e-4}, "brake": {"field": "brake", "scale": 0.01}},
+               "state": {"topic": "/ctrl/feedback", "wheel_speed": {"field": "speed", "scale": 1e-3},
+                         "handlebar": {"field": "steer", "scale": -1e-4}}}
+    mfile = tmp_path / "map.yaml"
+    mfile.write_text(yaml.safe_dump(mapping))
+    assert main([raw, "--out", str(tmp_path / "m"), "--replay", "--map", str(mfile)]) == 0
+    assert main([path, "--out", str(tmp_path / "s"), "--replay"] + ARGS) == 0
+    a = json.loads((tmp_path / "m" / "calibration.json").read_text())
+    b = json.loads((tmp_path / "s" / "calibration.json").read_text())
+    for loop in ("handlebar", "speed"):
+        # the same to the report's rounding (5 digits): raw x scale is not exactly the SI value
+        assert a["loops"][loop]["replay_rms"] == pytest.approx(b["loops"][loop]["replay_rms"], abs=2e-5), loop
+    # refusals: a mapping without a setpoint section, a mapping mixed with the topic options
+    del mapping["setpoint"]
+    mfile.write_text(yaml.safe_dump(mapping))
+    capsys.readouterr()
+    assert main([raw, "--out", str(tmp_path / "x"), "--map", str(mfile)]) == 2
+    assert "no 'setpoint' section" in capsys.readouterr().err
+    assert main([raw, "--out", str(tmp_path / "x"), "--map", str(mfile)] + ARGS) == 2
+    assert "replaces --config" in capsys.readouterr().err and not (tmp_path / "x").exists()

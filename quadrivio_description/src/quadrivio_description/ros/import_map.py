@@ -2,7 +2,7 @@
 become Quadrivio's inputs, so that the offline tools read a bag recorded by someone else's
 drivers without a hand-written converter.
 
-A mapping is a YAML file with any of four sections (a tool uses the ones it needs)::
+A mapping is a YAML file with any of five sections (a tool uses the ones it needs)::
 
     gps:                      # -> sensor_msgs/NavSatFix
       topic: /ublox/fix
@@ -29,9 +29,15 @@ A mapping is a YAML file with any of four sections (a tool uses the ones it need
       topic: /plc/status
       wheel_speed: {field: rear_raw, scale: 0.001, offset: 0.0}    # value = raw x scale + offset [m/s]
       handlebar: {field: steer_raw, scale: -1.0e-4, offset: 0.0}   # [rad]
+    setpoint:                 # what was sent to the vehicle (calibrate): speed, handlebar, brake
+      topic: /plc/command
+      speed: {field: speed_cmd, scale: 0.001}      # [m/s]
+      handlebar: {field: steer_cmd, scale: -1.0e-4} # [rad]
+      brake: {field: brake_cmd, scale: 0.01}        # [0..1]; leave out when not recorded
 
-Every section also takes ``stamp``: ``header`` (the message's header stamp, default) or
-``receipt`` (the bag's record time, for messages without a header). Messages are read with
+Every section also takes ``stamp``: ``header`` (the message's header stamp, default),
+``receipt`` (the bag's record time, for messages without a header) or ``auto`` (the
+header's where a message has one that is set, else the record time). Messages are read with
 the bag's own message definitions (a type need not be installed). :func:`load` checks the
 file (unknown keys, units, kinds, axes: one line naming the file and the key);
 :meth:`ImportMap.check` checks a bag against it (missing topics, missing fields: one line
@@ -46,7 +52,7 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from ..config import ConfigError, load_yaml
 
-ROLES = ("gps", "imu", "mag", "state")
+ROLES = ("gps", "imu", "mag", "state", "setpoint")
 UNITS = {"tesla": 1.0, "gauss": 1e-4, "microtesla": 1e-6, "nanotesla": 1e-9, "counts": None}
 STATUS = {"FIX": 0, "SBAS_FIX": 1, "GBAS_FIX": 2}
 KEYS = {
@@ -54,7 +60,9 @@ KEYS = {
     "imu": {"topic", "accel_field", "gyro_field", "accel_scale", "gyro_scale", "axes", "stamp"},
     "mag": {"topic", "field", "unit", "scale", "axes", "stamp"},
     "state": {"topic", "wheel_speed", "handlebar", "stamp"},
+    "setpoint": {"topic", "speed", "handlebar", "brake", "stamp"},
 }
+SCALARS = {"state": ("wheel_speed", "handlebar"), "setpoint": ("speed", "handlebar", "brake")}
 
 
 class ImportError_(ConfigError):
@@ -118,8 +126,8 @@ def load(path: str) -> "ImportMap":
         if not isinstance(topic, str) or not topic:
             raise ImportError_(f"{where}.topic is missing")
         stamp = d.get("stamp", "header")
-        if stamp not in ("header", "receipt"):
-            raise ImportError_(f"{where}.stamp = {stamp!r}: header or receipt")
+        if stamp not in ("header", "receipt", "auto"):
+            raise ImportError_(f"{where}.stamp = {stamp!r}: header, receipt or auto")
         s = Section(role, topic if topic.startswith("/") else "/" + topic, stamp)
         if role == "gps":
             kind = d.get("kind", "navsatfix")
@@ -162,7 +170,9 @@ def load(path: str) -> "ImportMap":
                           factor=(UNITS[unit] or 1.0) * scale, axes=_axes(d.get("axes", ["x", "y", "z"]),
                                                                            f"{where}.axes"))
         else:
-            for key in ("wheel_speed", "handlebar"):
+            for key in SCALARS[role]:
+                if key == "brake" and key not in d:
+                    continue  # not recorded
                 v = d.get(key, {"field": key})
                 if isinstance(v, str):
                     v = {"field": v}
@@ -186,18 +196,26 @@ def default() -> "ImportMap":
                                                  "axes": [(0, 1.0), (1, 1.0), (2, 1.0)]}),
         "state": Section("state", "/vehicle/state", opts={"wheel_speed": Scaled("wheel_speed"),
                                                            "handlebar": Scaled("handlebar")}),
+        "setpoint": Section("setpoint", "/vehicle/setpoint/auto", stamp="auto",
+                            opts={k: Scaled(k) for k in SCALARS["setpoint"]}),
     })
 
 
-def _get(msg, path: str, topic: str, what: str):
+def get_field(msg, path: str, topic: str, what: str, error=None):
+    """The field at dotted ``path`` of ``msg``; ``error`` (default :class:`ImportError_`)
+    names the topic, the type, the field and the fields there when it is missing."""
     obj = msg
     for part in path.split("."):
         if not hasattr(obj, part):
             slots = getattr(obj, "__slots__", [])
-            raise ImportError_(f"{topic} ({getattr(msg, '_type', type(msg).__name__)}): no field '{path}' for {what} "
-                               f"(at '{part}'; fields there: {', '.join(slots) or 'none'})")
+            raise (error or ImportError_)(
+                f"{topic} ({getattr(msg, '_type', type(msg).__name__)}) has no field '{path}' for {what} "
+                f"(at '{part}'; fields there: {', '.join(slots) or 'none'})")
         obj = getattr(obj, part)
     return obj
+
+
+_get = get_field
 
 
 def _vec(obj, axes: Sequence[Tuple[int, float]], scale: float) -> Tuple[float, float, float]:
@@ -240,8 +258,25 @@ class ImportMap:
 
         if s.stamp == "receipt":
             return t_recv
-        st = _get(msg, "header.stamp", s.topic, f"{s.role} stamps (set stamp: receipt for messages without one)")
+        if s.stamp == "auto":
+            st = getattr(getattr(msg, "header", None), "stamp", None)
+            return rospy.Time(st.secs, st.nsecs) if st is not None and (st.secs or st.nsecs) else t_recv
+        st = _get(msg, "header.stamp", s.topic, f"{s.role} stamps (set stamp: receipt or auto for messages without one)")
         return rospy.Time(st.secs, st.nsecs)
+
+    def stamp(self, role: str, msg, t_recv) -> float:
+        """A message's time [s] as the ``role`` section says (``t_recv``: the record time)."""
+        return self._stamp(self.sections[role], msg, t_recv).to_sec()
+
+    def scalars(self, role: str, msg) -> Dict[str, float]:
+        """The scaled numbers of a ``state`` or ``setpoint`` message, by our names."""
+        s = self.sections[role]
+        out = {}
+        for key in SCALARS[role]:
+            sc: Optional[Scaled] = s.opts.get(key)
+            if sc is not None:
+                out[key] = float(_get(msg, sc.field, s.topic, key)) * sc.scale + sc.offset
+        return out
 
     def convert(self, role: str, msg, t_recv):
         """``msg`` (of the bag's own type) as our message of ``role``; ``t_recv`` the record time."""
@@ -287,13 +322,14 @@ class ImportMap:
             out = MagneticField()
             m = _vec(_get(msg, o["field"], s.topic, "the field"), o["axes"], o["factor"])
             out.magnetic_field.x, out.magnetic_field.y, out.magnetic_field.z = m
-        else:
+        elif role == "state":
             from quadrivio_plc.msg import VehicleState
 
             out = VehicleState()
-            for key in ("wheel_speed", "handlebar"):
-                sc: Scaled = o[key]
-                setattr(out, key, float(_get(msg, sc.field, s.topic, key)) * sc.scale + sc.offset)
+            for key, value in self.scalars(role, msg).items():
+                setattr(out, key, value)
+        else:
+            raise ImportError_(f"{self.path}: the {role} section is read by calibrate only, not converted")
         out.header.stamp = stamp
         return out
 

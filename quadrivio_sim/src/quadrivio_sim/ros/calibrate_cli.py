@@ -35,7 +35,9 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, to_mapping
+from quadrivio_description.ros import import_map
 from quadrivio_description.ros.bag import open_bag, read_messages
+from quadrivio_description.ros.import_map import get_field
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 
@@ -66,19 +68,23 @@ class BagSpec:
 
 # ---------------------------------------------------------------- reading
 
-def _field(msg, path: str, topic: str):
-    obj = msg
-    for part in path.split("."):
-        if not hasattr(obj, part):
-            fields = getattr(obj, "__slots__", [])
-            raise CalibrationError(f"{topic}: message {type(msg)._type} has no field '{path}' "
-                                   f"(at '{part}'; fields: {', '.join(fields)})")
-        obj = getattr(obj, part)
-    return float(obj)
+def _field(msg, path: str, topic: str) -> float:
+    return float(get_field(msg, path, topic, "the calibration", CalibrationError))
 
 
-def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
-    """Arrays ``{"setpoint": {"t", "speed", "handlebar", "brake"}, "measurement": {...}}``."""
+def spec_from_map(imap) -> BagSpec:
+    """The topics of an import mapping's ``setpoint`` and ``state`` sections (its fields and
+    scales are read through the mapping itself)."""
+    for role in ("setpoint", "state"):
+        if role not in imap.sections:
+            raise CalibrationError(f"{imap.path}: no '{role}' section, and calibrate needs it (the setpoints sent "
+                                   "and the measured wheel speed and handlebar)")
+    return BagSpec(TopicSpec(imap.sections["setpoint"].topic), TopicSpec(imap.sections["state"].topic))
+
+
+def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndarray]]:
+    """Arrays ``{"setpoint": {"t", "speed", "handlebar", "brake"}, "measurement": {...}}``;
+    with ``imap`` (an import mapping) its setpoint and state sections say what is read."""
     import rosbag
 
     bag = open_bag(path, CalibrationError)
@@ -88,7 +94,8 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
             t = getattr(spec, role).topic
             if t not in topics:
                 have = ", ".join(f"{name} ({info.msg_type})" for name, info in sorted(topics.items())) or "none"
-                raise CalibrationError(f"{path} has no {role} topic {t}; its topics: {have}")
+                raise CalibrationError(f"{path} has no {role} topic {t}"
+                                       f"{f' ({imap.path})' if imap is not None else ''}; its topics: {have}")
         out: Dict[str, Dict[str, List[float]]] = {"setpoint": {}, "measurement": {}}
         bag_timed: Dict[str, int] = {}
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
@@ -96,6 +103,12 @@ def read_bag(path: str, spec: BagSpec) -> Dict[str, Dict[str, np.ndarray]]:
             for topic, msg, t_bag in read_messages(bag, path, list(by_topic), error=CalibrationError):
                 role, ts = by_topic[topic]
                 rec = out[role]
+                if imap is not None:
+                    section = "setpoint" if role == "setpoint" else "state"
+                    rec.setdefault("t", []).append(imap.stamp(section, msg, t_bag))
+                    for name, value in imap.scalars(section, msg).items():
+                        rec.setdefault("speed" if name == "wheel_speed" else name, []).append(value)
+                    continue
                 header = getattr(msg, "header", None)
                 if spec.stamp == "header":
                     if header is None:
@@ -199,14 +212,23 @@ def run(args) -> int:
     try:
         if os.path.exists(args.out) and not os.path.isdir(args.out):
             raise CalibrationError(f"--out {args.out} is a file, not a folder")
-        spec = from_mapping(BagSpec, load_yaml(args.config), args.config) if args.config else BagSpec()
-        spec = _apply_cli_topics(spec, args)
+        imap = None
+        if args.map:
+            if args.config or args.setpoint_topic or args.measurement_topic or args.setpoint_fields or \
+                    args.measurement_fields or args.stamp:
+                raise CalibrationError("--map says the topics, fields and stamps: it replaces --config, "
+                                       "--setpoint-*, --measurement-* and --stamp")
+            imap = import_map.load(args.map)
+            spec = spec_from_map(imap)
+        else:
+            spec = from_mapping(BagSpec, load_yaml(args.config), args.config) if args.config else BagSpec()
+            spec = _apply_cli_topics(spec, args)
         base_file = args.actuators or package_file("config", "actuators.yaml")
         base = from_mapping(ActuatorParams, load_yaml(base_file), base_file)
         sim_params = from_mapping(SimParams, load_yaml(package_file("config", "sim.yaml")), "sim.yaml")
         vehicle = load_vehicle()
         print(f"[calibrate] reading {args.bag}", flush=True)
-        data = read_bag(args.bag, spec)
+        data = read_bag(args.bag, spec, imap)
         dt_cycle = sim_params.plc.cycle
         loops = [x for x in args.loops.split(",") if x]
         series = {loop: series_for(data, loop, dt_cycle) for loop in loops}
@@ -321,6 +343,10 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--actuators", default="", help="actuator YAML to start from / replay (default: the package's)")
     p.add_argument("--loops", default="handlebar,speed", help="which loops: handlebar,speed")
     p.add_argument("--config", default="", help="YAML of topics and fields (keys: setpoint, measurement, stamp)")
+    p.add_argument("--map", default="", metavar="YAML",
+                   help="import mapping of a recording made with other drivers (quadrivio_description.ros.import_map): "
+                        "its setpoint and state sections, units and scales included; replaces --config and the "
+                        "topic, field and stamp options")
     p.add_argument("--setpoint-topic", default="", help="default /vehicle/setpoint/auto")
     p.add_argument("--measurement-topic", default="", help="default /vehicle/state")
     p.add_argument("--setpoint-fields", default="", help="e.g. speed=speed,handlebar=steer,brake=brake")
