@@ -32,3 +32,22 @@ def test_an_empty_value_is_dropped_by_roslaunch():
     launch file's test is for '' or 'none')."""
     p = localization_params(["mag_calibration:="])
     assert p["/localization/priors/magnetometer/source"].startswith("calibrate_mag")
+
+
+def node_names(argv, launch="sim.launch"):
+    import roslaunch.config
+    import rospkg
+
+    path = rospkg.RosPack().get_path("quadrivio") + "/launch/" + launch
+    cfg = roslaunch.config.load_config_default([(path, list(argv))], None, verbose=False)
+    return {n.name for n in cfg.nodes}
+
+
+@pytest.mark.parametrize("launch", ["sim.launch", "real.launch"])
+def test_excitation_replaces_navigation(launch):
+    argv = [] if launch == "sim.launch" else ["plc_host:=10.0.0.2"]
+    default = node_names(argv, launch)
+    assert "follower" in default and "excitation" not in default
+    exc = node_names(argv + ["excitation:=true"], launch)
+    assert "excitation" in exc and not {"follower", "path_publisher", "planner"} & exc
+    assert "localization" in exc and "plc_client" in exc

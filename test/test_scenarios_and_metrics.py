@@ -125,3 +125,17 @@ def test_metrics_without_ground_truth_are_null():
         assert m[key] is None, key
     assert m["gps_fix_fraction"] == pytest.approx(2 / 3, abs=0.01)
     assert m["completed"] is True
+
+
+def test_a_scenario_must_end_on_duration_covering_the_program(tmp_path):
+    from quadrivio_navigation.excitation import ExcitationParams, build
+
+    s = load_scenario("excitation")
+    assert s.run.end == "duration" and s.run.max_duration >= build(ExcitationParams()).duration + 1.0
+    bad = tmp_path / "short.yaml"
+    bad.write_text("name: short\nexcitation: {speed_hold: 10.0}\nrun: {end: duration, max_duration: 60.0}\n")
+    with pytest.raises(ConfigError, match="max_duration >= "):
+        load_scenario(str(bad))
+    bad.write_text("name: wrong\nexcitation: {handlebar_steps: [0.9]}\nrun: {end: duration, max_duration: 600.0}\n")
+    with pytest.raises(ConfigError, match="beyond max_handlebar"):
+        load_scenario(str(bad))

@@ -11,6 +11,8 @@ it at start-up (``/scenario/<section>``)::
     follower:       quadrivio_navigation/config/follower.yaml
     map:            quadrivio_navigation/config/map_server.yaml (the map: published on /map, obstacles in the simulator)
     planner:        quadrivio_navigation/config/planner.yaml
+    excitation:     quadrivio_navigation/config/excitation.yaml (open-loop steps and sweeps for
+                    `calibrate` instead of navigation; run.end must be duration)
     run:            this module's RunParams (real-time factor, time limit, end)
 
 :func:`load_scenario` validates every section against the same dataclasses the nodes
@@ -37,7 +39,7 @@ class RunParams:
     gps_nmea: bool = param(False, doc="GPS through NMEA and the real driver")
 
 
-SECTIONS = ("sim", "sensors", "localization", "path", "follower", "map", "planner", "run")
+SECTIONS = ("sim", "sensors", "localization", "path", "follower", "map", "planner", "excitation", "run")
 SENSORS = ("gps", "imu", "mag", "laser_front", "laser_rear", "camera_left", "camera_right")
 
 
@@ -70,6 +72,7 @@ def resolve(name_or_path: str) -> str:
 def _validators():
     """(section path, dataclass, defaults file) of every node a scenario can configure."""
     from quadrivio_localization.smoother import LocalizerParams
+    from quadrivio_navigation.excitation import ExcitationParams
     from quadrivio_navigation.follower import FollowerConfig
     from quadrivio_navigation.maps import MapParams
     from quadrivio_navigation.paths import PathParams
@@ -95,6 +98,7 @@ def _validators():
     yield "follower", FollowerConfig, pkg("quadrivio_navigation", "config", "follower.yaml")
     yield "map", MapParams, pkg("quadrivio_navigation", "config", "map_server.yaml")
     yield "planner", PlannerParams, pkg("quadrivio_navigation", "config", "planner.yaml")
+    yield "excitation", ExcitationParams, pkg("quadrivio_navigation", "config", "excitation.yaml")
 
 
 def _section(data: Dict[str, Any], path: str) -> Any:
@@ -130,11 +134,26 @@ def load_scenario(name_or_path: str) -> Scenario:
     sensors = data.get("sensors") or {}
     if not isinstance(sensors, dict) or set(sensors) - set(SENSORS):
         raise ConfigError(f"{path}: 'sensors' may only configure {', '.join(SENSORS)}")
+    checked = {}
     for section, cls, cfg in _validators():
         over = _section(data, section)
         if over is not None:
-            replace_nested(_defaults(cls, cfg), over, f"{path}: {section.replace('/', '.')}")
+            checked[section] = replace_nested(_defaults(cls, cfg), over, f"{path}: {section.replace('/', '.')}")
     run = from_mapping(RunParams, data.get("run") or {}, path, "run")
+    if "excitation" in data:
+        from quadrivio_navigation.excitation import build
+
+        exc_params = checked.get("excitation")
+        if exc_params is None:  # an empty section: the defaults
+            exc_params = next(_defaults(cls, cfg) for sec, cls, cfg in _validators() if sec == "excitation")
+        try:
+            program = build(exc_params)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from exc
+        if run.end != "duration" or run.max_duration < program.duration + 1.0:
+            raise ConfigError(f"{path}: an excitation program has no follower to say it is done: set run.end: "
+                              f"duration and run.max_duration >= {program.duration + 1.0:.1f} s (the program "
+                              f"lasts {program.duration:.1f} s)")
     _check_map(data, path)
     return Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
 

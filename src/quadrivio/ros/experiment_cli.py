@@ -86,6 +86,7 @@ class Runner:
         self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
                                    f"scenario_file:={self.scenario.path}", f"rtf:={self.rtf}", f"seed:={self.seed}",
                                    f"initial_mode:={run.initial_mode}", f"gps_nmea:={str(run.gps_nmea).lower()}",
+                                   f"excitation:={str('excitation' in self.scenario.data).lower()}",
                                    "start_paused:=true"], "roslaunch.log")
         master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
         self._wait(lambda: self._has_topic(master, "/clock") and self._has_service(master, "/simulator/unpause"),
