@@ -123,7 +123,7 @@ class Localizer:
         self.gate = GpsGate(p.gps_gate)
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
-        self.prev_fix: Optional[Tuple[float, np.ndarray, np.ndarray, np.ndarray]] = None  # t, fix, antenna, R
+        self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
         self.events: List[str] = []  # for the node's log
@@ -488,19 +488,34 @@ class Localizer:
             step = None
             if self.prev_fix is not None and self.prev_fix[0] < t and self.prev_fix[0] > self.no_odometry_t:
                 # (the estimated antenna's step says little without odometry over it)
-                t_p, z_p, a_p, R_p = self.prev_fix
-                n = (t - t_p) / self.dt
-                dist = abs(self.latest_speed) * (t - t_p)
-                Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
-                step = ((zc - z_p) - (antenna - a_p), R_p, R, Q)
-            self.prev_fix = (t, zc, antenna, R)
+                t_p, z_p, k_p, R_p = self.prev_fix
+                pose_p = self._pose(k_p, values) if k_p >= self.oldest_k else None
+                if pose_p is not None:
+                    # Both ends from this solution: a correction of the estimate between the
+                    # two decisions is not a step of the fixes (it was: after a freeze of the
+                    # odometry the estimate's own recovery opened a "burst" that locked out an
+                    # RTK receiver's fixes).
+                    a_p = self._vector(G(k_p), values) + F.gps_antenna(pose_p, self.lever)
+                    n = (t - t_p) / self.dt
+                    dist = abs(self.latest_speed) * (t - t_p)
+                    Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
+                    step = ((zc - z_p) - (antenna - a_p), R_p, R, Q)
+            self.prev_fix = (t, zc, k, R)
             behind = []
             for t_b, z_b, k_b, R_b in self.decided:
                 pose_b = self._pose(k_b, values) if t - g.group - 1e-9 <= t_b and k_b >= self.oldest_k else None
                 if pose_b is not None:
                     behind.append((z_b - self._vector(G(k_b), values) - F.gps_antenna(pose_b, self.lever), R_b))
             self.decided.append((t, zc, k, R))
+            bursts, yielded = self.gate.bursts, self.gate.yielded
             verdict = self.gate.decide(t, nu, self._antenna_cov(pose), R, group, step, behind)
+            if self.gate.bursts > bursts:
+                self.events.append(f"GPS fix at {t:.2f} s jumped {float(np.hypot(*step[0])):.2f} m against the "
+                                   "estimated motion: a suspected multipath burst, its fixes rejected until they "
+                                   "jump back")
+            if self.gate.yielded > yielded:
+                self.events.append(f"GPS fixes accepted again at {t:.2f} s after {self.p.gps_gate.yield_after:g} s "
+                                   "of rejections (the estimate was lost, not misled)")
             if verdict.use:
                 noise = gtsam.noiseModel.Robust.Create(
                     gtsam.noiseModel.mEstimator.Huber.Create(self.p.noise.gps_huber),

@@ -44,6 +44,50 @@ class PlcClientParams:
     frame_id: str = param("base_link", doc="frame_id of /vehicle/state")
 
 
+class PlcClock:
+    """The PLC's clock (``plc_time`` of its STATE frames) on the receiver's clock, so that a
+    measurement is stamped when it was made, not when it was read.
+
+    A frame read late (a client that was descheduled or stopped, a backlog in the socket)
+    is as old as its ``plc_time`` says. The offset is the smallest ``t_recv - plc_time``
+    seen (the least-delayed frame is the truest), allowed to grow by ``drift`` s per s so
+    that a PLC clock running slow is followed (a quartz is within 1e-4); a PLC clock that
+    steps (a restart, the simulator's reset) or a receipt clock that moves back starts
+    the estimate over. Stamps never lie ahead of their receipt."""
+
+    def __init__(self, drift: float = 2e-4, max_step: float = 1.0) -> None:
+        self.drift, self.max_step = drift, max_step
+        self.offset: Optional[float] = None
+        self.last: Optional[Tuple[float, float]] = None  # (plc_time, t_recv) of the previous frame
+        self.restarts = 0
+        self.late = 0  # frames stamped more than 0.1 s before their receipt
+
+    def reset(self) -> None:
+        self.offset = self.last = None
+
+    def stamp(self, plc_time: float, t_recv: float) -> float:
+        """Receipt-clock time of the measurement ``plc_time`` read at ``t_recv``."""
+        if not (math.isfinite(plc_time) and math.isfinite(t_recv)):
+            return t_recv
+        if self.last is not None:
+            p0, r0 = self.last
+            # the PLC's clock stepped (restart, reset) or ours moved back: start over
+            if plc_time < p0 or t_recv < r0 or plc_time + self.offset > t_recv + self.max_step:
+                self.reset()
+                self.restarts += 1
+        sample = t_recv - plc_time
+        if self.offset is None:
+            self.offset = sample
+        else:
+            grown = self.offset + self.drift * max(0.0, t_recv - self.last[1])
+            self.offset = min(grown, sample)
+        self.last = (plc_time, t_recv)
+        t = min(t_recv, plc_time + self.offset)
+        if t_recv - t > 0.1:
+            self.late += 1
+        return t
+
+
 @dataclass
 class _Latest:
     t: float  # [s] ROS time of arrival

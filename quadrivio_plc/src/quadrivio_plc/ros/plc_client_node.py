@@ -36,7 +36,7 @@ from quadrivio_description.ros.params import node_params, private_params, split_
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
 from .. import protocol as P
-from ..client import Multiplexer, PlcClientParams, PlcLink
+from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink
 from ..msg import Interlock, Setpoint, VehicleState
 from ..srv import SetMode, SetModeResponse
 
@@ -63,6 +63,7 @@ class PlcClientNode:
         self.interlocks: Dict[str, str] = {}  # active interlocks: source -> reason
         self.initial_sent = False
         self.link_down_published = -1e9
+        self.clock = PlcClock()
         self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
         self.link = PlcLink(self.p.host, self.p.port, connect_timeout=self.p.connect_timeout,
                             reconnect_min=self.p.reconnect_min, reconnect_max=self.p.reconnect_max,
@@ -87,6 +88,7 @@ class PlcClientNode:
         self.mux = Multiplexer(self.p.setpoint_timeout, self.p.stop_brake)
         self.initial_sent = False
         self.link_down_published = -1e9
+        self.clock.reset()
 
     # -------------------------------------------------------------- link I/O
     def _io_loop(self) -> None:
@@ -109,7 +111,9 @@ class PlcClientNode:
         if self.interlocks and s.mode in DRIVING:
             self._stop_for_interlock()
         m = VehicleState()
-        m.header.stamp = rospy.Time.now()
+        # when the PLC measured it: a frame read late (this process descheduled or stopped,
+        # a backlog in the socket) is not a fresh measurement
+        m.header.stamp = rospy.Time.from_sec(self.clock.stamp(s.plc_time, rospy.get_time()))
         m.header.frame_id = self.p.frame_id
         m.wheel_speed, m.handlebar, m.throttle, m.brake = s.wheel_speed, s.handlebar, s.throttle, s.brake
         m.mode, m.faults, m.plc_time = s.mode, s.faults, s.plc_time
@@ -256,7 +260,9 @@ class PlcClientNode:
                            ("frames never acknowledged", str(s.unanswered)),
                            ("frames the PLC found stale", str(s.stale_acks)),
                            ("active interlocks", str(self.interlocks)),
-                           ("connects", str(s.connects)), ("disconnects", str(s.disconnects))):
+                           ("connects", str(s.connects)), ("disconnects", str(s.disconnects)),
+                           ("states read more than 0.1 s late", str(self.clock.late)),
+                           ("PLC clock restarts", str(self.clock.restarts))):
             stat.add(key, value)
         return stat
 
