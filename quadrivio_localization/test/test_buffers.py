@@ -54,3 +54,19 @@ def test_between_is_inclusive():
     buf = filled([0.0, 0.1, 0.2, 0.3], [1, 2, 3, 4])
     assert buf.between(0.1, 0.2) == [2, 3]
     assert buf.between(0.31, 1.0) == [] and buf.between(-1.0, 0.0) == [1]
+
+
+def test_a_sample_does_not_stand_across_a_gap():
+    """States that stopped for 5 s (a frozen PLC client) and came back: the intervals inside
+    the gap, found only when the data returns, must not be driven by the last state before
+    it (they were: 0.3 m of phantom motion for a braked vehicle, and the GPS jump test then
+    rejected the fixes)."""
+    stamps = list(np.arange(0.0, 4.5, 0.02)) + list(np.arange(10.7, 11.0, 0.02))
+    buf = filled(stamps, [1.3] * 225 + [0.0] * (len(stamps) - 225))
+    assert buf.pieces(10.6, 10.65, max_hold=0.2) == []  # inside the gap
+    assert buf.pieces(10.65, 10.75, max_hold=0.2) == []  # its end
+    before = buf.pieces(4.45, 4.6, max_hold=0.2)  # the gap's first 0.12 s: the last state still stands
+    assert sum(dt for dt, _ in before) == pytest.approx(0.15) and {v for _, v in before} == {1.3}
+    assert flat(buf.pieces(10.75, 10.8, max_hold=0.2)) != []
+    assert len(buf.pieces(10.6, 10.65)) == 1  # without a hold: the old behaviour
+    assert buf.pieces(11.0, 11.3, max_hold=0.2) == []  # past the newest sample

@@ -10,6 +10,7 @@ binary searches on the stamps; nothing is rebuilt per query.
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
 from typing import Deque, Generic, List, Optional, Tuple, TypeVar
 
@@ -56,9 +57,11 @@ class SampleBuffer(Generic[V]):
         """Index of the sample in force at ``t`` (-1 before the first)."""
         return bisect.bisect_right(self.t, t) - 1
 
-    def pieces(self, t0: float, t1: float) -> List[Tuple[float, V]]:
+    def pieces(self, t0: float, t1: float, max_hold: float = math.inf) -> List[Tuple[float, V]]:
         """``(duration, value)`` of the step function over ``[t0, t1]``; empty when no
-        sample is in force at ``t0``."""
+        sample is in force at ``t0``, or when a sample would have to stand for more than
+        ``max_hold`` s past its stamp somewhere in the interval (a gap in the data: the
+        value before it says nothing of the time inside it)."""
         i = self._at(t0)
         if i < 0:
             return []
@@ -67,6 +70,8 @@ class SampleBuffer(Generic[V]):
         while t < t1 - 1e-12 and i < n:
             end = min(t1, max(self.t[i + 1], t)) if i + 1 < n else t1
             if end > t:
+                if end - self.t[i] > max_hold + 1e-9:
+                    return []
                 out.append((end - t, self.v[i]))
             t = end
             i += 1

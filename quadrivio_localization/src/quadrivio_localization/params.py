@@ -84,9 +84,10 @@ class LocalizerParams:
     max_wait: float = param(0.25, lo=0.0, hi=5.0, unit="s",
                             doc="create a keyframe this long after its time even if a sensor has not covered it")
     odometry_hold: float = param(0.2, lo=0.0, hi=5.0, unit="s",
-                                 doc="the last wheel speed and handlebar stand for at most this long after their "
-                                     "stamp; beyond, an interval has no odometry (a silent PLC link is not a vehicle "
-                                     "driving on at its last speed)")
+                                 doc="a wheel speed and handlebar (or gyro) sample stands for at most this long "
+                                     "after its stamp; beyond it, or across a gap in the samples, an interval has no "
+                                     "odometry (no gyro): a silent PLC link is not a vehicle driving on at its last "
+                                     "speed, before or after it comes back")
     use_gps: bool = param(True)
     use_mag: bool = param(True)
     use_gyro: bool = param(True)

@@ -195,15 +195,17 @@ class Localizer:
 
     def _samples(self, t0: float, t1: float) -> List[Tuple[float, float, float]]:
         """Piecewise-constant ``(dt, speed, handlebar)`` over ``[t0, t1]`` from the states;
-        none when ``t1`` is more than ``odometry_hold`` past the newest state."""
-        if not self.states or t1 > self.states.last_t + self.p.odometry_hold + 1e-9:
-            return []
-        return [(dt, v, h) for dt, (v, h) in self.states.pieces(t0, t1)]
+        none when a state would stand for more than ``odometry_hold`` anywhere in it: past
+        the newest state, or across a gap (states that stopped for seconds and came back:
+        the state before the gap must not drive the keyframes made when they return)."""
+        pieces = self.states.pieces(t0, t1, max_hold=self.p.odometry_hold)
+        return [(dt, v, h) for dt, (v, h) in pieces]
 
     def _gyro_integral(self, t0: float, t1: float) -> Optional[float]:
         if not self.gyro or self.gyro.last_t < t1 - 0.5 * self.dt:
             return None
-        return self.gyro.integral(t0, t1)
+        pieces = self.gyro.pieces(t0, t1, max_hold=self.p.odometry_hold)  # a gap: no gyro over it
+        return sum(dt * w for dt, w in pieces) if pieces else None
 
     def _covered(self, t1: float, now: float) -> bool:
         """Whether the odometry and the gyro have data up to ``t1`` (or waiting is over)."""
