@@ -153,3 +153,39 @@ def test_replay_bad_input(tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "no gps topic /gps/fix" in r.stderr and "/chatter" in r.stderr
     assert not (tmp_path / "o.bag").exists() and not list(tmp_path.glob(".replay-*"))
+
+
+def test_an_excitation_run_calibrates_back_to_the_simulators_loops(tmp_path):
+    """experiment drives the excitation program (shortened here), and calibrate identifies
+    the simulator's own handlebar and speed loops from the recording (the paper's Fig. 4
+    procedure, from a plain recording: the setpoints on /vehicle/setpoint/auto, the
+    responses on /vehicle/state)."""
+    import yaml
+
+    from quadrivio.scenario import scenarios_dir
+    from quadrivio_sim.actuators import load_actuators
+    from quadrivio_sim.paths import package_file
+
+    scenario = yaml.safe_load(open(os.path.join(scenarios_dir(), "excitation.yaml")))
+    scenario["excitation"] = {"settle": 2.0, "handlebar_steps": [0.1, -0.1, 0.3, -0.3, 0.0, 0.05, -0.2, 0.0],
+                              "handlebar_hold": 1.5, "sweep_duration": 6.0, "speed_steps": [1.0, 2.5, 1.5, 0.0, 2.0, 0.0],
+                              "speed_hold": 3.0}
+    scenario["run"]["max_duration"] = 48.0
+    sfile = tmp_path / "excitation.yaml"
+    sfile.write_text(yaml.safe_dump(scenario))
+    out = tmp_path / "exc"
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", str(sfile), "--out", str(out), "--wall-timeout", "300"],
+                       capture_output=True, text=True, timeout=420)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    r = subprocess.run(["rosrun", "quadrivio_sim", "calibrate", str(out / "run.bag"), "--out", str(tmp_path / "cal")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    report = json.loads((tmp_path / "cal" / "calibration.json").read_text())
+    truth = load_actuators(package_file("config", "actuators.yaml"))
+    h, s = report["loops"]["handlebar"], report["loops"]["speed"]
+    assert h["identified"]["pid.kp"] == pytest.approx(truth.handlebar.pid.kp, rel=0.1)
+    assert h["identified"]["servo_tau"] == pytest.approx(truth.handlebar.servo_tau, abs=0.02)
+    assert h["identified"]["dead_time"] == pytest.approx(truth.handlebar.dead_time, abs=0.021)
+    assert s["identified"]["max_accel"] == pytest.approx(truth.speed.max_accel, rel=0.1)
+    assert s["identified"]["max_decel"] == pytest.approx(truth.speed.max_decel, rel=0.1)
+    assert h["replay_rms"] < 0.01 and s["replay_rms"] < 0.1

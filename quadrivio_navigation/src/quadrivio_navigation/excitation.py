@@ -31,7 +31,7 @@ from quadrivio_description.config import ConfigError, param
 class ExcitationParams:
     settle: float = param(3.0, lo=0.0, hi=60.0, unit="s", doc="standing still before the program")
     handlebar_speed: float = param(1.5, lo=0.3, hi=5.0, unit="m/s", doc="speed during the handlebar steps and sweep")
-    handlebar_steps: Tuple[float, ...] = param((0.1, -0.1, 0.3, -0.3, 0.0, 0.45, -0.45, 0.0, 0.05, -0.2, 0.0),
+    handlebar_steps: Tuple[float, ...] = param((0.1, -0.1, 0.3, -0.3, 0.0, 0.4, -0.4, 0.0, 0.05, -0.2, 0.0),
                                          unit="rad", doc="handlebar setpoints in turn")
     handlebar_hold: float = param(2.0, lo=0.5, hi=30.0, unit="s", doc="each handlebar step held this long")
     sweep_amplitude: float = param(0.25, lo=0.0, hi=1.0, unit="rad", doc="chirp amplitude (0: no sweep)")

@@ -9,7 +9,8 @@
 5. stops everything cleanly, then writes ``DIR/metrics.json``, ``DIR/run_info.json`` and
    the plots (``trajectory.png``, ``errors.png``, ``control.png``, ``calibration.png``).
 
-Exit status: 0 completed, 1 ran but did not complete, 2 bad input or failure to start.
+Exit status: 0 completed (the follower done; without a follower, the run's duration reached),
+1 ran but did not complete, 2 bad input or failure to start.
 """
 
 from __future__ import annotations
@@ -247,4 +248,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         print(f"experiment: cannot analyse the run: {exc}", file=sys.stderr)
         return 2
     runner.log(f"results in {runner.out}: run.bag, metrics.json, run_info.json, plots; logs in logs/")
-    return 0 if m.get("completed") else 1
+    done = m.get("completed")
+    if done is None:  # no follower (an excitation run): the run's own outcome
+        done = outcome == "completed"
+    return 0 if done else 1

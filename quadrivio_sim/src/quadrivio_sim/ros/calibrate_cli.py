@@ -25,6 +25,7 @@ import argparse
 import dataclasses
 import datetime as dt
 import json
+import math
 import os
 import sys
 import tempfile
@@ -72,6 +73,16 @@ def _field(msg, path: str, topic: str) -> float:
     return float(get_field(msg, path, topic, "the calibration", CalibrationError))
 
 
+def _add(rec: Dict[str, List[float]], topic: str, t: float, values: Dict[str, float], unusable: Dict[str, int]) -> None:
+    """Append one message's time and values, unless one of them is not finite (counted)."""
+    if not all(math.isfinite(v) for v in values.values()) or not math.isfinite(t):
+        unusable[topic] = unusable.get(topic, 0) + 1
+        return
+    rec.setdefault("t", []).append(t)
+    for name, value in values.items():
+        rec.setdefault(name, []).append(value)
+
+
 def spec_from_map(imap) -> BagSpec:
     """The topics of an import mapping's ``setpoint`` and ``state`` sections (its fields and
     scales are read through the mapping itself)."""
@@ -97,6 +108,7 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
                 raise CalibrationError(f"{path} has no {role} topic {t}"
                                        f"{f' ({imap.path})' if imap is not None else ''}; its topics: {have}")
         out: Dict[str, Dict[str, List[float]]] = {"setpoint": {}, "measurement": {}}
+        unusable: Dict[str, int] = {}
         bag_timed: Dict[str, int] = {}
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
         try:
@@ -105,9 +117,9 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
                 rec = out[role]
                 if imap is not None:
                     section = "setpoint" if role == "setpoint" else "state"
-                    rec.setdefault("t", []).append(imap.stamp(section, msg, t_bag))
-                    for name, value in imap.scalars(section, msg).items():
-                        rec.setdefault("speed" if name == "wheel_speed" else name, []).append(value)
+                    t = imap.stamp(section, msg, t_bag)
+                    values = {("speed" if k == "wheel_speed" else k): v for k, v in imap.scalars(section, msg).items()}
+                    _add(rec, topic, t, values, unusable)
                     continue
                 header = getattr(msg, "header", None)
                 if spec.stamp == "header":
@@ -120,13 +132,14 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
                     t = t_bag.to_sec()
                     if spec.stamp == "auto":
                         bag_timed[topic] = bag_timed.get(topic, 0) + 1
-                rec.setdefault("t", []).append(t)
-                for name in ("speed", "handlebar", "brake"):
-                    fpath = getattr(ts, name)
-                    if fpath:
-                        rec.setdefault(name, []).append(_field(msg, fpath, topic))
+                values = {name: _field(msg, getattr(ts, name), topic) for name in ("speed", "handlebar", "brake")
+                          if getattr(ts, name)}
+                _add(rec, topic, t, values, unusable)
         except rosbag.ROSBagException as exc:
             raise CalibrationError(f"{path}: corrupt bag ({exc})") from exc
+    for topic, n in unusable.items():
+        print(f"[calibrate] {topic}: {n} message(s) with a value that is not a finite number skipped (e.g. the "
+              "PLCClient's states while it has no PLC session)", file=sys.stderr)
     for topic, n in bag_timed.items():
         print(f"[calibrate] {topic}: {n} message(s) without a header stamp timed by the bag's record time "
               "(its transport delay counts as dead time)", file=sys.stderr)
