@@ -132,10 +132,10 @@ def test_a_scenario_must_end_on_duration_covering_the_program(tmp_path):
 
     s = load_scenario("excitation")
     assert s.run.end == "duration" and s.run.max_duration >= build(ExcitationParams()).duration + 1.0
-    bad = tmp_path / "short.yaml"
-    bad.write_text("name: short\nexcitation: {speed_hold: 10.0}\nrun: {end: duration, max_duration: 60.0}\n")
-    with pytest.raises(ConfigError, match="max_duration >= "):
-        load_scenario(str(bad))
-    bad.write_text("name: wrong\nexcitation: {handlebar_steps: [0.9]}\nrun: {end: duration, max_duration: 600.0}\n")
-    with pytest.raises(ConfigError, match="beyond max_handlebar"):
-        load_scenario(str(bad))
+    for text, message in (("name: short\nexcitation: {speed_hold: 10.0}\nrun: {end: duration, max_duration: 60.0}\n",
+                           "max_duration >= "),
+                          ("name: wrong\nexcitation: {handlebar_steps: [0.9]}\nrun: {end: duration, max_duration: 600}\n",
+                           "beyond max_handlebar")):
+        (tmp_path / "bad.yaml").write_text(text)
+        with pytest.raises(ConfigError, match=message):
+            load_scenario(str(tmp_path / "bad.yaml"))

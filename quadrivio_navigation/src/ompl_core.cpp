@@ -449,26 +449,17 @@ rs::Word shortest(double dx, double dy, double th0, double th1)
 }
 }  // namespace dubins
 
-// SE(2) with weighted Reeds-Shepp curves as motions: distance is the curve's cost
-// (reverse parts counted reverse_cost times), interpolation follows that curve. Not
-// symmetric once reverse_cost > 1: the same curve driven the other way swaps forward and
-// reverse. OMPL checks and assembles motions in path order, so that is sound.
-class WeightedReedsSheppStateSpace : public ob::SE2StateSpace
+// SE(2) whose motions are curves of words (segments 'L', 'S', 'R' of signed length in
+// radii): distance is the word's cost (reverse parts counted reverse_cost times),
+// interpolation follows the word. The subclasses say which word joins two states.
+class WordSpace : public ob::SE2StateSpace
 {
 public:
-    WeightedReedsSheppStateSpace(double rho, double reverseCost) : rho_(rho), rc_(reverseCost)
+    WordSpace(double rho, double reverseCost, bool symmetric) : rho_(rho), rc_(reverseCost), symmetric_(symmetric)
     {
-        setName("WeightedReedsShepp" + getName());
     }
 
-    rs::Word word(const ob::State *a, const ob::State *b) const
-    {
-        auto *s1 = a->as<StateType>();
-        auto *s2 = b->as<StateType>();
-        double dx = s2->getX() - s1->getX(), dy = s2->getY() - s1->getY();
-        double c = std::cos(s1->getYaw()), s = std::sin(s1->getYaw());
-        return rs::cheapest((c * dx + s * dy) / rho_, (-s * dx + c * dy) / rho_, s2->getYaw() - s1->getYaw(), rc_);
-    }
+    virtual rs::Word word(const ob::State *a, const ob::State *b) const = 0;
 
     double distance(const ob::State *a, const ob::State *b) const override
     {
@@ -477,21 +468,26 @@ public:
 
     bool isMetricSpace() const override
     {
-        return rc_ == 1.0;
+        return symmetric_;
     }
 
     bool hasSymmetricDistance() const override
     {
-        return rc_ == 1.0;
+        return symmetric_;
     }
 
     bool hasSymmetricInterpolate() const override
     {
-        return rc_ == 1.0;
+        return symmetric_;
     }
 
     void interpolate(const ob::State *from, const ob::State *to, double t, ob::State *state) const override
     {
+        if (t >= 1.0)
+        {
+            copyState(state, to);
+            return;
+        }
         rs::Word w = word(from, to);
         // t is a fraction of the curve's cost: walk the segments to that cost
         double target = t * w.cost, acc = 0.0;
@@ -505,11 +501,6 @@ public:
             advance(x, y, th, w.kind[i], (w.len[i] >= 0 ? part : -part) * rho_, rho_);
             acc += segCost;
         }
-        if (t >= 1.0)
-        {
-            copyState(state, to);
-            return;
-        }
         auto *out = state->as<StateType>();
         out->setXY(x, y);
         out->setYaw(wrap(th));
@@ -521,91 +512,54 @@ public:
         double eps = .1;
         int flags = ~(ob::StateSpace::STATESPACE_INTERPOLATION | ob::StateSpace::STATESPACE_TRIANGLE_INEQUALITY |
                       ob::StateSpace::STATESPACE_DISTANCE_BOUND);
-        if (rc_ != 1.0)
+        if (!symmetric_)
             flags &= ~ob::StateSpace::STATESPACE_DISTANCE_SYMMETRIC;
         ob::StateSpace::sanityChecks(zero, eps, flags);
     }
 
-    double rho() const
-    {
-        return rho_;
-    }
-
-private:
+protected:
     double rho_, rc_;
+    bool symmetric_;
 };
 
-// SE(2) with Dubins curves as motions (forwards only), on our own word computation (see
-// namespace dubins). Not symmetric: the curve from b to a is another one.
-class DubinsSpace : public ob::SE2StateSpace
+// Weighted Reeds-Shepp curves. Not symmetric once reverse_cost > 1: the same curve driven
+// the other way swaps forward and reverse. OMPL checks and assembles motions in path
+// order, so that is sound.
+class WeightedReedsSheppStateSpace : public WordSpace
 {
 public:
-    explicit DubinsSpace(double rho) : rho_(rho)
+    WeightedReedsSheppStateSpace(double rho, double reverseCost) : WordSpace(rho, reverseCost, reverseCost == 1.0)
+    {
+        setName("WeightedReedsShepp" + getName());
+    }
+
+    rs::Word word(const ob::State *a, const ob::State *b) const override
+    {
+        auto *s1 = a->as<StateType>();
+        auto *s2 = b->as<StateType>();
+        double dx = s2->getX() - s1->getX(), dy = s2->getY() - s1->getY();
+        double c = std::cos(s1->getYaw()), s = std::sin(s1->getYaw());
+        return rs::cheapest((c * dx + s * dy) / rho_, (-s * dx + c * dy) / rho_, s2->getYaw() - s1->getYaw(), rc_);
+    }
+};
+
+// Dubins curves (forwards only), on our own word computation (see namespace dubins). Not
+// symmetric: the curve from b to a is another one.
+class DubinsSpace : public WordSpace
+{
+public:
+    explicit DubinsSpace(double rho) : WordSpace(rho, 1.0, false)
     {
         setName("QvDubins" + getName());
     }
 
-    rs::Word word(const ob::State *a, const ob::State *b) const
+    rs::Word word(const ob::State *a, const ob::State *b) const override
     {
         auto *s1 = a->as<StateType>();
         auto *s2 = b->as<StateType>();
         return dubins::shortest((s2->getX() - s1->getX()) / rho_, (s2->getY() - s1->getY()) / rho_, s1->getYaw(),
                                 s2->getYaw());
     }
-
-    double distance(const ob::State *a, const ob::State *b) const override
-    {
-        return rho_ * word(a, b).cost;
-    }
-
-    bool isMetricSpace() const override
-    {
-        return false;
-    }
-
-    bool hasSymmetricDistance() const override
-    {
-        return false;
-    }
-
-    bool hasSymmetricInterpolate() const override
-    {
-        return false;
-    }
-
-    void interpolate(const ob::State *from, const ob::State *to, double t, ob::State *state) const override
-    {
-        if (t >= 1.0)
-        {
-            copyState(state, to);
-            return;
-        }
-        rs::Word w = word(from, to);
-        double target = t * w.cost, acc = 0.0;
-        auto *s0 = from->as<StateType>();
-        double x = s0->getX(), y = s0->getY(), th = s0->getYaw();
-        for (int i = 0; i < w.n && target > acc; ++i)
-        {
-            double part = std::min(w.len[i], target - acc);
-            advance(x, y, th, w.kind[i], part * rho_, rho_);
-            acc += w.len[i];
-        }
-        auto *out = state->as<StateType>();
-        out->setXY(x, y);
-        out->setYaw(wrap(th));
-    }
-
-    void sanityChecks() const override
-    {
-        double zero = std::numeric_limits<double>::epsilon();
-        double eps = .1;
-        int flags = ~(ob::StateSpace::STATESPACE_INTERPOLATION | ob::StateSpace::STATESPACE_TRIANGLE_INEQUALITY |
-                      ob::StateSpace::STATESPACE_DISTANCE_BOUND | ob::StateSpace::STATESPACE_DISTANCE_SYMMETRIC);
-        ob::StateSpace::sanityChecks(zero, eps, flags);
-    }
-
-private:
-    double rho_;
 };
 
 // One curve between two states as segments (kind 'L', 'S', 'R'; signed length in m).
@@ -620,7 +574,7 @@ Segments curveSegments(const ob::StateSpacePtr &space, bool reverse, double rho,
                        const ob::State *b)
 {
     Segments out;
-    rs::Word w = reverse ? space->as<WeightedReedsSheppStateSpace>()->word(a, b) : space->as<DubinsSpace>()->word(a, b);
+    rs::Word w = space->as<WordSpace>()->word(a, b);
     for (int i = 0; i < w.n; ++i)
     {
         if (std::fabs(w.len[i]) < 1e-12)
@@ -869,11 +823,10 @@ int qv_map_pose_cost(void *map, double x, double y, double th)
     return static_cast<Map *>(map)->worst(x, y, th);
 }
 
-// Cost of the cheapest Reeds-Shepp word with reverse parts weighted, for cross-checks.
-double qv_weighted_rs_cost(double x0, double y0, double th0, double x1, double y1, double th1, double rho,
-                           double reverse_cost)
+// The distance of `space` between two poses (the cross-checks below).
+static double spaceDistance(const ob::StateSpacePtr &space, double x0, double y0, double th0, double x1, double y1,
+                            double th1)
 {
-    auto space = std::make_shared<WeightedReedsSheppStateSpace>(rho, reverse_cost);
     ob::ScopedState<ob::SE2StateSpace> a(space), b(space);
     a->setXY(x0, y0);
     a->setYaw(th0);
@@ -882,16 +835,17 @@ double qv_weighted_rs_cost(double x0, double y0, double th0, double x1, double y
     return space->distance(a.get(), b.get());
 }
 
+// Cost of the cheapest Reeds-Shepp word with reverse parts weighted, for cross-checks.
+double qv_weighted_rs_cost(double x0, double y0, double th0, double x1, double y1, double th1, double rho,
+                           double reverse_cost)
+{
+    return spaceDistance(std::make_shared<WeightedReedsSheppStateSpace>(rho, reverse_cost), x0, y0, th0, x1, y1, th1);
+}
+
 // Length of the Dubins curve the planner uses (DubinsSpace), for cross-checks.
 double qv_dubins_length(double x0, double y0, double th0, double x1, double y1, double th1, double rho)
 {
-    auto space = std::make_shared<DubinsSpace>(rho);
-    ob::ScopedState<ob::SE2StateSpace> a(space), b(space);
-    a->setXY(x0, y0);
-    a->setYaw(th0);
-    b->setXY(x1, y1);
-    b->setYaw(th1);
-    return space->distance(a.get(), b.get());
+    return spaceDistance(std::make_shared<DubinsSpace>(rho), x0, y0, th0, x1, y1, th1);
 }
 
 // OMPL's Reeds-Shepp (reverse != 0) or Dubins distance between two poses, for cross-checks.
@@ -899,12 +853,7 @@ double qv_curve_length(double x0, double y0, double th0, double x1, double y1, d
 {
     ob::StateSpacePtr space = reverse ? ob::StateSpacePtr(new ob::ReedsSheppStateSpace(rho)) :
                                         ob::StateSpacePtr(new ob::DubinsStateSpace(rho));
-    ob::ScopedState<ob::SE2StateSpace> a(space), b(space);
-    a->setXY(x0, y0);
-    a->setYaw(th0);
-    b->setXY(x1, y1);
-    b->setYaw(th1);
-    return space->distance(a.get(), b.get());
+    return spaceDistance(space, x0, y0, th0, x1, y1, th1);
 }
 
 // Plan from start to goal (x, y, theta in the grid frame). The path's poses (x, y,
