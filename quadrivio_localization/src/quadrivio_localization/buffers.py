@@ -77,10 +77,10 @@ class SampleBuffer(Generic[V]):
             i += 1
         return out
 
-    def integral(self, t0: float, t1: float) -> Optional[float]:
-        """Integral of a scalar step function over ``[t0, t1]``; None when no sample is in
-        force at ``t0``."""
-        pieces = self.pieces(t0, t1)
+    def integral(self, t0: float, t1: float, max_hold: float = math.inf) -> Optional[float]:
+        """Integral of a scalar step function over ``[t0, t1]``; None when :meth:`pieces`
+        gives none."""
+        pieces = self.pieces(t0, t1, max_hold)
         if not pieces:
             return None
         return sum(dt * float(v) for dt, v in pieces)

@@ -204,8 +204,7 @@ class Localizer:
     def _gyro_integral(self, t0: float, t1: float) -> Optional[float]:
         if not self.gyro or self.gyro.last_t < t1 - 0.5 * self.dt:
             return None
-        pieces = self.gyro.pieces(t0, t1, max_hold=self.p.odometry_hold)  # a gap: no gyro over it
-        return sum(dt * w for dt, w in pieces) if pieces else None
+        return self.gyro.integral(t0, t1, max_hold=self.p.odometry_hold)  # a gap: no gyro over it
 
     def _covered(self, t1: float, now: float) -> bool:
         """Whether the odometry and the gyro have data up to ``t1`` (or waiting is over)."""
