@@ -570,7 +570,7 @@ struct Segments
     int n = 0;
 };
 
-Segments curveSegments(const ob::StateSpacePtr &space, bool reverse, double rho, const ob::State *a,
+Segments curveSegments(const ob::StateSpacePtr &space, double rho, const ob::State *a,
                        const ob::State *b)
 {
     Segments out;
@@ -616,7 +616,7 @@ private:
                 fill(s1, s2, 0.0, *lastValid);
             return false;
         }
-        Segments seg = curveSegments(si_->getStateSpace(), reverse_, rho_, s1, s2);
+        Segments seg = curveSegments(si_->getStateSpace(), rho_, s1, s2);
         double total = 0.0;
         for (int i = 0; i < seg.n; ++i)
             total += std::fabs(seg.len[i]);
@@ -700,7 +700,7 @@ public:
         double c = si_->distance(a, b);
         if (costWeight_ <= 0.0)
             return ob::Cost(c);
-        Segments seg = curveSegments(si_->getStateSpace(), reverse_, rho_, a, b);
+        Segments seg = curveSegments(si_->getStateSpace(), rho_, a, b);
         auto *sa = a->as<ob::SE2StateSpace::StateType>();
         double x = sa->getX(), y = sa->getY(), th = sa->getYaw();
         int w = map_->worst(x, y, th);
@@ -1036,7 +1036,7 @@ static int plan(void *map_handle, double turning_radius, int reverse, const char
     for (size_t k = 0; k + 1 < states.size(); ++k)
     {
         auto *a = states[k]->as<ob::SE2StateSpace::StateType>();
-        Segments seg = curveSegments(space, reverse != 0, rho, states[k], states[k + 1]);
+        Segments seg = curveSegments(space, rho, states[k], states[k + 1]);
         double x = a->getX(), y = a->getY(), th = a->getYaw();
         for (int i = 0; i < seg.n; ++i)
         {
