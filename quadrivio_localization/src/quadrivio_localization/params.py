@@ -80,7 +80,7 @@ class CalibrationPriors:
 @dataclass(frozen=True)
 class LocalizerParams:
     rate: float = param(20.0, lo=1.0, hi=200.0, unit="Hz", doc="keyframe and output rate")
-    lag: float = param(3.0, lo=0.2, hi=60.0, unit="s", doc="smoother window")
+    lag: float = param(3.0, lo=0.2, hi=60.0, unit="s", doc="smoother window (keyframes leave it a second at a time)")
     max_wait: float = param(0.25, lo=0.0, hi=5.0, unit="s",
                             doc="create a keyframe this long after its time even if a sensor has not covered it")
     odometry_hold: float = param(0.2, lo=0.0, hi=5.0, unit="s",

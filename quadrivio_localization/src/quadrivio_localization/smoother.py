@@ -11,7 +11,10 @@ Keyframes ``X_k`` (gtsam.Pose2 of base_link in map) lie on a fixed grid of
 (or ``max_wait`` s have passed: a silent sensor does not stop the estimate), so late
 data is waited for briefly; GPS fixes, which arrive about 80 ms after their stamp, are
 attached to the keyframe of their measurement time when they arrive. The graph is
-solved by GTSAM's iSAM2 fixed-lag smoother (``lag`` s). As in ROAMFREE, the calibration
+solved by iSAM2 over a fixed-lag window (``lag`` s, :mod:`.window`, which keeps the
+chain in time order so that an update re-eliminates its newest part only; GTSAM's
+IncrementalFixedLagSmoother re-eliminated the whole window at every update, 12 ms of
+every 50). As in ROAMFREE, the calibration
 parameters are slowly varying processes: one value per keyframe, linked by a tight
 random walk, so the graph stays a chain and an update only touches its newest part.
 
@@ -53,6 +56,7 @@ __all__ = ["Localizer", "Estimate", "Counters", "CALIBRATION_NAMES", "Calibratio
            "MagCalibration", "NoiseParams", "Prior"]
 from .buffers import SampleBuffer
 from .leveling import Leveller, lowpass
+from .window import FixedLagWindow
 
 X = gtsam.symbol_shorthand.X  # poses
 B = gtsam.symbol_shorthand.B  # gyro bias
@@ -63,6 +67,14 @@ G = gtsam.symbol_shorthand.G  # GPS receiver drift (east, north) [m]
 # chain (constant variables tied to every factor would make iSAM2 relinearize and
 # re-eliminate the whole window at each update), and the calibration may drift slowly.
 UT = 1e6  # tesla -> microtesla
+# iSAM2 relinearises a variable when its update exceeds these (per component). The factors
+# are linear in the gyro bias, the magnetometer calibration and the GPS drift: only the
+# poses (through the heading) and the kinematic calibration (through the arc) need it.
+# A relinearised variable re-eliminates the window from it to the newest keyframe.
+RELINEARIZE = gtsam.ISAM2ThresholdMap()
+for _char, _limit in (("x", [0.02, 0.02, 0.005]), ("k", [0.002, 0.002, 0.002]), ("b", [1e9]), ("m", [1e9] * 5),
+                      ("g", [1e9] * 2)):
+    RELINEARIZE.insert((_char, np.array(_limit, float)))
 CALIBRATION_NAMES = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias", "mag_hard_iron_x",
                      "mag_hard_iron_y", "mag_soft_iron_xx", "mag_soft_iron_yy", "mag_soft_iron_xy")
 
@@ -131,7 +143,7 @@ class Localizer:
         self.z_t: Optional[float] = None
         self.k: Optional[int] = None  # newest keyframe index
         self.oldest_k: Optional[int] = None
-        self.smoother: Optional[gtsam.IncrementalFixedLagSmoother] = None
+        self.smoother: Optional[FixedLagWindow] = None
         self.result = gtsam.Values()
         self.counters = Counters()
         self.cov = np.diag([1e4, 1e4, 10.0])
@@ -253,9 +265,9 @@ class Localizer:
         xy = z - R @ np.asarray(self.lever)
         pose0 = gtsam.Pose2(float(xy[0]), float(xy[1]), theta0)
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(0.01)
+        params.setRelinearizeThreshold(RELINEARIZE)
         params.relinearizeSkip = 1
-        self.smoother = gtsam.IncrementalFixedLagSmoother(self.p.lag, params)
+        self.smoother = FixedLagWindow(self.p.lag, params)
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
         heading_sigma = self.p.initial_heading_sigma if self.p.use_mag else math.pi
         pos_sigma = math.sqrt(max(ve, vn) + self.p.noise.gps_drift ** 2) + 0.5
@@ -300,10 +312,12 @@ class Localizer:
         while self._t(self.k + 1) <= now + 1e-9 and self._covered(self._t(self.k + 1), now):
             self._add_keyframe(graph, values, stamps)
             created += 1
+        if created == 0:
+            # Fixes and magnetometer slots wait for the next keyframe: an update of a few
+            # keys only would leave the window's elimination order to COLAMD (see .window).
+            return self._estimate()
         self._add_gps(graph, values)
         self._add_mags(graph, values)
-        if created == 0 and graph.size() == 0:
-            return self._estimate()
         t_new = self._t(self.k)
         self.smoother.update(graph, values, stamps)
         self.result = self.smoother.calculateEstimate()
