@@ -51,3 +51,21 @@ def test_excitation_replaces_navigation(launch):
     exc = node_names(argv + ["excitation:=true"], launch)
     assert "excitation" in exc and not {"follower", "path_publisher", "planner"} & exc
     assert "localization" in exc and "plc_client" in exc
+
+
+@pytest.mark.parametrize("launch,argv", [("sim.launch", ["scenario:=consumer", "seed:=4"]),
+                                         ("sim.launch", ["scenario:=rtk"]), ("real.launch", ["scenario:=rtk"])])
+def test_a_launch_sets_the_scenario_and_seed_fresh(launch, argv):
+    """On a master that outlives a launch, an earlier run's scenario keys (the figure eight's
+    outages read by a noise run) or seed must not stay: /scenario and /run are cleared
+    before the launch's parameters are set (roslaunch's clear_params)."""
+    import roslaunch.config
+    import rospkg
+
+    path = rospkg.RosPack().get_path("quadrivio") + "/launch/" + launch
+    cfg = roslaunch.config.load_config_default([(path, argv)], None, verbose=False)
+    assert {"/scenario/", "/run/"} <= set(cfg.clear_params)
+    params = {k: v.value for k, v in cfg.params.items()}
+    name = argv[0].split(":=")[1]
+    assert params["/scenario/name"] == name and params["/scenario/source"].endswith(f"/{name}.yaml")
+    assert params.get("/run/seed") == (4 if "seed:=4" in argv else None)
