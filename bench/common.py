@@ -27,9 +27,11 @@ def machine() -> str:
 def write_result(name: str, result: dict) -> str:
     os.makedirs(RESULTS, exist_ok=True)
     path = os.path.join(RESULTS, f"{name}.json")
-    with open(path, "w") as fh:
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:  # never a half-written result
         json.dump(result, fh, indent=2, sort_keys=True)
         fh.write("\n")
+    os.replace(tmp, path)
     print(f"[bench] wrote {os.path.relpath(path, os.path.dirname(HERE))}", flush=True)
     return path
 

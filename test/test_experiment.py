@@ -189,3 +189,30 @@ def test_an_excitation_run_calibrates_back_to_the_simulators_loops(tmp_path):
     assert s["identified"]["max_accel"] == pytest.approx(truth.speed.max_accel, rel=0.1)
     assert s["identified"]["max_decel"] == pytest.approx(truth.speed.max_decel, rel=0.1)
     assert h["replay_rms"] < 0.01 and s["replay_rms"] < 0.1
+
+
+def test_a_closed_loop_campaign_runs_the_whole_stack_per_run(tmp_path):
+    """`campaign --closed-loop`: each run is an `experiment` (the stack on its own master),
+    its metrics in the table, its folder (bag, metrics.json, plots) kept under runs/."""
+    import yaml
+    from quadrivio.scenario import resolve
+
+    with open(resolve("rtk")) as f:
+        data = yaml.safe_load(f)
+    data.update(name="short_rtk", path={"figure_eight": {"laps": 1}},
+                run=dict(data["run"], max_duration=25.0, end="duration"))
+    path = tmp_path / "short_rtk.yaml"
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    r = subprocess.run(["rosrun", "quadrivio", "campaign", str(path), "--closed-loop", "--seeds", "1", "--rtf", "2",
+                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    result = json.loads((out / "campaign.json").read_text())
+    assert result["meta"]["mode"] == "closed loop" and result["meta"]["failures"] == []
+    (run,) = result["runs"]
+    assert run["scenario"] == "short_rtk" and run["seed"] == 0
+    assert 0.0 < run["rmse_m"] < 1.0 and 0.0 < run["gps_rmse_m"] < 1.0
+    folder = out / "runs" / "short_rtk_s0"
+    m = json.loads((folder / "metrics.json").read_text())
+    assert m["seed"] == 0 and 20.0 < m["sim_duration_s"] < 30.0
+    assert "| short_rtk | 1 |" in (out / "campaign.md").read_text()

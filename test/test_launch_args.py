@@ -69,3 +69,35 @@ def test_a_launch_sets_the_scenario_and_seed_fresh(launch, argv):
     name = argv[0].split(":=")[1]
     assert params["/scenario/name"] == name and params["/scenario/source"].endswith(f"/{name}.yaml")
     assert params.get("/run/seed") == (4 if "seed:=4" in argv else None)
+
+
+def test_a_scenarios_vehicle_reaches_the_nodes_and_the_urdf(tmp_path):
+    """sim.launch scenario_file:=F with a vehicle: section: the overrides are on
+    /scenario/vehicle (read over /vehicle by every node, the predictor included) and in
+    robot_description; vehicle_file:= chooses the base file."""
+    import roslaunch.config
+    import rospkg
+    import yaml
+
+    base = rospkg.RosPack().get_path("quadrivio_description") + "/config/vehicle.yaml"
+    with open(base) as f:
+        data = yaml.safe_load(f)
+    data["wheelbase"] = 1.3
+    vfile = tmp_path / "my_atv.yaml"
+    vfile.write_text(yaml.safe_dump(data))
+    scenario = tmp_path / "heavy.yaml"
+    scenario.write_text("name: heavy\nvehicle: {body: {mass: 452.5}, drivetrain: {drive: 4wd}}\n")
+    path = rospkg.RosPack().get_path("quadrivio") + "/launch/sim.launch"
+    cfg = roslaunch.config.load_config_default(
+        [(path, [f"scenario_file:={scenario}", f"vehicle_file:={vfile}"])], None, verbose=False)
+    params = {k: v.value for k, v in cfg.params.items()}
+    assert params["/scenario/vehicle/drivetrain/drive"] == "4wd" and params["/scenario/vehicle/body/mass"] == 452.5
+    assert params["/vehicle/wheelbase"] == 1.3 and params["/vehicle/drivetrain/drive"] == "2wd"
+    from quadrivio_description.urdf import build_urdf
+    from quadrivio_description.vehicle import load_vehicle, with_overrides
+
+    urdf = params["/robot_description"]
+    expected = with_overrides(load_vehicle(str(vfile)), {"body": {"mass": 452.5}, "drivetrain": {"drive": "4wd"}}, "t")
+    assert urdf == build_urdf(expected, root_inertia=False)
+    plain = roslaunch.config.load_config_default([(path, [])], None, verbose=False)
+    assert plain.params["/robot_description"].value != urdf

@@ -139,3 +139,37 @@ def test_a_scenario_must_end_on_duration_covering_the_program(tmp_path):
         (tmp_path / "bad.yaml").write_text(text)
         with pytest.raises(ConfigError, match=message):
             load_scenario(str(tmp_path / "bad.yaml"))
+
+
+def test_a_scenario_chooses_the_vehicle(tmp_path):
+    """vehicle: overrides vehicle.yaml's keys (drive train, masses, limits) for the whole run,
+    validated like every other section; the rest of the vehicle stays."""
+    from quadrivio.scenario import vehicle
+    from quadrivio_description.urdf import build_urdf
+    from quadrivio_description.vehicle import load_vehicle
+
+    f = tmp_path / "heavy_4wd.yaml"
+    f.write_text("name: heavy_4wd\nvehicle: {drivetrain: {drive: 4wd_locked}, body: {mass: 450.0}, "
+                 "steering: {max_angle: 0.35}}\n")
+    s = load_scenario(str(f))
+    v, default = vehicle(s), load_vehicle()
+    assert v.drivetrain.drive == "4wd_locked" and default.drivetrain.drive == "2wd"
+    assert v.body.mass == 450.0 and v.steering.max_angle == 0.35
+    assert v.wheelbase == default.wheelbase and v.wheels == default.wheels
+    assert 'value="450' not in build_urdf(default) and build_urdf(v) != build_urdf(default)
+    plain = tmp_path / "plain.yaml"
+    plain.write_text("name: plain\n")
+    assert vehicle(load_scenario(str(plain))) == default
+
+
+@pytest.mark.parametrize("section,message", [
+    ("{drivetrain: {drive: 3wd}}", r"vehicle.*drive.*3wd"),
+    ("{body: {mass: -5}}", r"vehicle.*mass.*-5"),
+    ("{wheelbase: 1.2, tyres: {}}", r"vehicle.*tyres"),
+    ("4wd", r"vehicle"),
+])
+def test_bad_vehicle_overrides_name_the_problem(tmp_path, section, message):
+    f = tmp_path / "bad.yaml"
+    f.write_text(f"name: bad\nvehicle: {section}\n")
+    with pytest.raises(ConfigError, match=message):
+        load_scenario(str(f))

@@ -18,6 +18,7 @@
 
 #include <cmath>
 #include <memory>
+#include <string>
 #include <mutex>
 
 namespace ql = quadrivio_localization;
@@ -27,16 +28,21 @@ class PredictorNode
 public:
   PredictorNode() : nh_(), pnh_("~")
   {
+    // The vehicle file's value, or the scenario's vehicle: override of it (as vehicle_params() in Python)
+    auto vehicle = [this](const std::string& key, double& value) {
+      return nh_.getParam("/scenario/vehicle/" + key, value) || nh_.getParam("/vehicle/" + key, value);
+    };
     double wheelbase = 0.0, ratio = 1.0;
-    if (!nh_.getParam("/vehicle/wheelbase", wheelbase) || !(wheelbase > 0.0))
+    if (!vehicle("wheelbase", wheelbase) || !(wheelbase > 0.0))
     {
       ROS_FATAL("predictor: /vehicle/wheelbase is missing or not positive (load vehicle.yaml into /vehicle)");
       ros::shutdown();
       return;
     }
-    nh_.param("/vehicle/steering/ratio", ratio, 1.0);
+    if (!vehicle("steering/ratio", ratio))
+      ratio = 1.0;
     double max_angle = 0.0;
-    if (!nh_.getParam("/vehicle/steering/max_angle", max_angle) || !(max_angle > 0.0))
+    if (!vehicle("steering/max_angle", max_angle) || !(max_angle > 0.0))
     {
       ROS_FATAL("predictor: /vehicle/steering/max_angle is missing or not positive (load vehicle.yaml into /vehicle)");
       ros::shutdown();

@@ -50,6 +50,9 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
            ("cpu_frac", "smoother CPU", ""))
 
 
+SCHEDULER_TIMEOUT = 10.0  # [s] to connect to --scheduler
+
+
 class CampaignError(Exception):
     pass
 
@@ -268,7 +271,12 @@ def main(argv=None) -> int:
 
         cluster = None
         if args.scheduler:
-            client = Client(args.scheduler)
+            try:
+                client = Client(args.scheduler, timeout=SCHEDULER_TIMEOUT)
+            except (OSError, TimeoutError) as exc:
+                print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within {SCHEDULER_TIMEOUT:g} s "
+                      f"({exc}); nothing run", file=sys.stderr)
+                return 2
         else:
             workers = args.workers or os.cpu_count() or 1
             cluster = LocalCluster(n_workers=min(workers, len(jobs)), threads_per_worker=1, processes=True,

@@ -4,6 +4,8 @@ Sections (all optional but ``name``), each overriding the config of the node tha
 it at start-up (``/scenario/<section>``)::
 
     name, description, seed
+    vehicle:        quadrivio_description/config/vehicle.yaml (or sim.launch's vehicle_file):
+                    drive train, masses, limits; every node of the run reads them
     sim:            quadrivio_sim/config/sim.yaml         (terrain, spawn, obstacles, physics)
     sensors:        gps | imu | mag | laser_front | laser_rear -> quadrivio_sim/config/<sensor>.yaml
     localization:   quadrivio_localization/config/localization.yaml
@@ -39,7 +41,7 @@ class RunParams:
     gps_nmea: bool = param(False, doc="GPS through NMEA and the real driver")
 
 
-SECTIONS = ("sim", "sensors", "localization", "path", "follower", "map", "planner", "excitation", "run")
+SECTIONS = ("vehicle", "sim", "sensors", "localization", "path", "follower", "map", "planner", "excitation", "run")
 SENSORS = ("gps", "imu", "mag", "laser_front", "laser_rear", "camera_left", "camera_right")
 
 
@@ -71,6 +73,7 @@ def resolve(name_or_path: str) -> str:
 
 def _validators():
     """(section path, dataclass, defaults file) of every node a scenario can configure."""
+    from quadrivio_description.vehicle import VehicleParams, default_vehicle_file
     from quadrivio_localization.smoother import LocalizerParams
     from quadrivio_navigation.excitation import ExcitationParams
     from quadrivio_navigation.follower import FollowerConfig
@@ -86,6 +89,7 @@ def _validators():
         import rospkg
         return os.path.join(rospkg.RosPack().get_path(name), *parts)
 
+    yield "vehicle", VehicleParams, default_vehicle_file()
     yield "sim", SimParams, sim_file("config", "sim.yaml")
     for sensor, cls, cfg in (("gps", GpsAdapterParams, "gps.yaml"), ("imu", ImuAdapterParams, "imu.yaml"),
                              ("mag", MagAdapterParams, "mag.yaml"), ("laser_front", LaserAdapterParams, "laser.yaml"),
@@ -184,3 +188,11 @@ def _check_map(data: Dict[str, Any], path: str) -> None:
 
 def summary(s: Scenario) -> Tuple[str, ...]:
     return (f"scenario {s.name} ({os.path.relpath(s.path)}), seed {s.seed}", s.description)
+
+
+def vehicle(s: Scenario, base=None):
+    """The vehicle of scenario ``s``: ``base`` (default: vehicle.yaml's) with its ``vehicle:``
+    section applied."""
+    from quadrivio_description.vehicle import load_vehicle, with_overrides
+
+    return with_overrides(base if base is not None else load_vehicle(), s.data.get("vehicle"), f"{s.path}: vehicle")

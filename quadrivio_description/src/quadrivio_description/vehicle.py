@@ -14,9 +14,9 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import Dict, Tuple
+from typing import Any, Dict, Mapping, Optional, Tuple
 
-from .config import ConfigError, from_mapping, load_yaml, param
+from .config import ConfigError, from_mapping, load_yaml, param, replace_nested
 from .paths import package_dir as _package_dir
 
 GRAVITY = 9.81  # [m/s^2]
@@ -203,10 +203,29 @@ def load_vehicle(path: str = "") -> VehicleParams:
     return from_mapping(VehicleParams, load_yaml(path), path)
 
 
+def with_overrides(vehicle: VehicleParams, overrides: Any, source: str) -> VehicleParams:
+    """``vehicle`` with a scenario's ``vehicle:`` section applied (drive train, masses,
+    limits: any keys of vehicle.yaml, nested), validated as a full load is; none: unchanged."""
+    if overrides is None or overrides == {}:
+        return vehicle
+    if not isinstance(overrides, Mapping):
+        raise ConfigError(f"{source}: must be a mapping of vehicle.yaml keys (e.g. drivetrain: {{drive: 4wd}}), "
+                          f"got {overrides!r}")
+    return replace_nested(vehicle, overrides, source)
+
+
+def scenario_vehicle(path: str, vehicle: Optional[VehicleParams] = None) -> VehicleParams:
+    """The vehicle of the scenario file ``path``: ``vehicle`` (default: vehicle.yaml's)
+    with the scenario's ``vehicle:`` section applied."""
+    data = load_yaml(path) or {}
+    base = vehicle if vehicle is not None else load_vehicle()
+    return with_overrides(base, data.get("vehicle") if isinstance(data, Mapping) else None, f"{path}: vehicle")
+
+
 def vehicle_from_mapping(data, source: str = "/vehicle") -> VehicleParams:
     """Validate vehicle parameters already loaded elsewhere (e.g. the ``/vehicle`` ROS namespace)."""
     return from_mapping(VehicleParams, data, source)
 
 
-__all__ = ["VehicleParams", "load_vehicle", "vehicle_from_mapping", "default_vehicle_file", "ConfigError",
+__all__ = ["VehicleParams", "load_vehicle", "vehicle_from_mapping", "with_overrides", "scenario_vehicle", "default_vehicle_file", "ConfigError",
            "GRAVITY", "REQUIRED_SENSOR_FRAMES"]

@@ -2,7 +2,8 @@
 
 1. validates the scenario (every section against the nodes' own parameter classes);
 2. starts a private ROS master and ``sim.launch`` with the simulator paused, the PLC
-   asked for the scenario's mode, logs in ``DIR/logs``;
+   asked for the scenario's mode, logs in ``DIR/logs`` (``--stack real``: ``sim.launch
+   hardware:=true``, the vehicle's stand-in, and ``real.launch`` against it, unchanged);
 3. records ``DIR/run.bag`` and unpauses once the recorder is subscribed;
 4. reports progress until the follower is done or aborts, the scenario's time limit,
    or a required node dies;
@@ -46,6 +47,7 @@ def _free_port() -> int:
 class Runner:
     def __init__(self, args) -> None:
         self.args = args
+        self.launches: List[subprocess.Popen] = []  # roslaunch processes besides self.launch
         self.scenario = load_scenario(args.scenario)
         self.out = os.path.abspath(args.out)
         self.rtf = args.rtf if args.rtf is not None else self.scenario.run.rtf
@@ -84,14 +86,31 @@ class Runner:
         run = self.scenario.run
         self.log(f"scenario {self.scenario.name} (seed {self.seed}, real-time factor {self.rtf:g}): "
                  f"{self.scenario.description}")
-        self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
-                                   f"scenario_file:={self.scenario.path}", f"rtf:={self.rtf}", f"seed:={self.seed}",
-                                   f"initial_mode:={run.initial_mode}", f"gps_nmea:={str(run.gps_nmea).lower()}",
-                                   f"excitation:={str('excitation' in self.scenario.data).lower()}",
-                                   "start_paused:=true"], "roslaunch.log")
+        plc_port = _free_port()  # runs in parallel (a closed-loop campaign) each have their own PLC
+        excitation = str("excitation" in self.scenario.data).lower()
+        common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
+                  f"excitation:={excitation}"]
+        if self.args.stack == "real":
+            # The vehicle's stand-in, then real.launch unchanged against it on the same master
+            gps_tty = os.path.join(self.out, "logs", "gps_tty")
+            self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", "hardware:=true",
+                                       f"rtf:={self.rtf}", f"seed:={self.seed}", f"gps_tty:={gps_tty}",
+                                       "start_paused:=true"] + common, "roslaunch.log")
+        else:
+            self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
+                                       f"rtf:={self.rtf}", f"seed:={self.seed}",
+                                       f"gps_nmea:={str(run.gps_nmea).lower()}", "start_paused:=true"] + common,
+                                      "roslaunch.log")
         master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
         self._wait(lambda: self._has_topic(master, "/clock") and self._has_service(master, "/simulator/unpause"),
                    120, "the simulator")
+        if self.args.stack == "real":
+            self.launches.append(self._spawn(["roslaunch", "--wait", "quadrivio", "real.launch", "use_sim_time:=true",
+                                              "plc_host:=127.0.0.1", f"gps_device:={gps_tty}"] + common,
+                                             "roslaunch_real.log"))
+            self._wait(lambda: all(self._has_topic(master, t) for t in ("/localization/odom", "/follower/status",
+                                                                        "/vehicle/state", "/gps/fix")),
+                       120, "real.launch's stack")
         self.bag = self._spawn(["rosbag", "record", "--lz4", "-O", os.path.join(self.out, "run.bag"), *RECORD],
                                "rosbag.log")
         self._wait(lambda: self._recording(master), 60, "the recorder")
@@ -111,9 +130,9 @@ class Runner:
     def _wait(self, cond, timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout
         while not cond():
-            if self.launch.poll() is not None:
+            if self.launch.poll() is not None or any(p.poll() is not None for p in self.launches):
                 raise RuntimeError(f"roslaunch exited while waiting for {what}; see "
-                                   f"{os.path.join(self.out, 'logs', 'roslaunch.log')}")
+                                   f"{os.path.join(self.out, 'logs')}")
             if time.monotonic() > deadline:
                 raise RuntimeError(f"timed out waiting for {what}")
             threading.Event().wait(0.2)
@@ -158,8 +177,8 @@ class Runner:
             t_start = now if t_start is None and now > 0 else t_start
             st = self.status
             wall = time.monotonic() - self.wall0
-            if self.launch.poll() is not None:
-                outcome = "a node died (see logs/roslaunch.log)"
+            if self.launch.poll() is not None or any(p.poll() is not None for p in self.launches):
+                outcome = "a node died (see logs/roslaunch*.log)"
                 break
             if run.end == "path_done" and st is not None and st.status in (st.DONE, st.ABORTED):
                 outcome = "completed" if st.status == st.DONE else f"aborted: {st.reason}"
@@ -187,7 +206,9 @@ class Runner:
         return outcome
 
     def stop(self) -> None:
-        for p in reversed(self.procs):  # the recorder first: it closes the bag on SIGINT
+        bag = getattr(self, "bag", None)
+        order = ([bag] if bag is not None else []) + [p for p in reversed(self.procs) if p is not bag]
+        for p in order:  # the recorder first: it closes the bag on SIGINT
             if p.poll() is None:
                 os.killpg(p.pid, signal.SIGINT)
                 try:
@@ -203,6 +224,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--out", required=True, help="output folder (run.bag, metrics.json, plots, logs)")
     p.add_argument("--rtf", type=float, default=None, help="real-time factor (default: the scenario's)")
     p.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
+    p.add_argument("--stack", choices=("sim", "real"), default="sim",
+                   help="sim: sim.launch (default); real: sim.launch hardware:=true and real.launch against it, "
+                        "as on the vehicle")
     p.add_argument("--wall-timeout", type=float, default=0.0, help="give up after this many wall seconds (0: never)")
     args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
     if args.seed is not None and args.seed < 0:
@@ -236,6 +260,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
+            "stack": args.stack,
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
     tmp = os.path.join(runner.out, ".run_info.json.tmp")
     with open(tmp, "w") as fh:

@@ -15,7 +15,7 @@ import rospy
 
 from ..config import ConfigError, from_mapping, replace_nested
 from ..site import SiteParams, default_site_file, load_site
-from ..vehicle import VehicleParams, default_vehicle_file, load_vehicle
+from ..vehicle import VehicleParams, default_vehicle_file, load_vehicle, with_overrides
 
 T = TypeVar("T")
 
@@ -52,12 +52,17 @@ def split_params(data: Dict[str, Any], cls: Type[Any]) -> Tuple[Dict[str, Any], 
 
 
 def vehicle_params() -> VehicleParams:
-    """Vehicle parameters from ``/vehicle`` (or, when absent, the package's vehicle.yaml)."""
+    """Vehicle parameters from ``/vehicle`` (or, when absent, the package's vehicle.yaml),
+    with the scenario's ``vehicle:`` overrides (``/scenario/vehicle``) applied."""
     try:
         if rospy.has_param("/vehicle"):
-            return from_mapping(VehicleParams, rospy.get_param("/vehicle"), "/vehicle")
-        rospy.loginfo("no /vehicle parameters on the server: loading %s", default_vehicle_file())
-        return load_vehicle()
+            vehicle = from_mapping(VehicleParams, rospy.get_param("/vehicle"), "/vehicle")
+        else:
+            rospy.loginfo("no /vehicle parameters on the server: loading %s", default_vehicle_file())
+            vehicle = load_vehicle()
+        if rospy.has_param("/scenario/vehicle"):
+            vehicle = with_overrides(vehicle, rospy.get_param("/scenario/vehicle"), "/scenario/vehicle")
+        return vehicle
     except ConfigError as exc:
         fatal(f"bad vehicle parameter: {exc}")
 
