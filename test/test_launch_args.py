@@ -101,3 +101,22 @@ def test_a_scenarios_vehicle_reaches_the_nodes_and_the_urdf(tmp_path):
     assert urdf == build_urdf(expected, root_inertia=False)
     plain = roslaunch.config.load_config_default([(path, [])], None, verbose=False)
     assert plain.params["/robot_description"].value != urdf
+
+
+def test_the_stand_in_and_real_launch_share_no_node():
+    """sim.launch hardware:=true runs only what stands in for the vehicle; real.launch on the
+    same master adds the stack, the NMEA driver and the description: no name twice (roslaunch
+    would kill the first), and use_sim_time from real.launch's argument."""
+    import roslaunch.config
+    import rospkg
+
+    d = rospkg.RosPack().get_path("quadrivio") + "/launch/"
+    stand_in = roslaunch.config.load_config_default([(d + "sim.launch", ["hardware:=true"])], None, verbose=False)
+    names = {n.namespace + n.name for n in stand_in.nodes}
+    assert names == {"/simulator", "/gps_adapter", "/imu_adapter", "/mag_adapter", "/laser_front", "/laser_rear"}
+    assert stand_in.params["/gps_adapter/publish_fix"].value is False  # NMEA only: the real driver publishes
+    real = roslaunch.config.load_config_default(
+        [(d + "real.launch", ["use_sim_time:=true", "plc_host:=127.0.0.1", "gps_device:=/tmp/x"])], None, verbose=False)
+    assert not names & {n.namespace + n.name for n in real.nodes}
+    assert real.params["/use_sim_time"].value is True
+    assert {"/localization", "/follower", "/plc_client", "/gps/nmea_gps"} <= {n.namespace + n.name for n in real.nodes}

@@ -83,7 +83,8 @@ def _sim_params(s: Scenario, seed: int):
     return replace_nested(p, {"seed": seed})
 
 
-def _adapter(s: Scenario, sensor: str, cls, cfg: str):
+def sensor_params(s: Scenario, sensor: str, cls, cfg: str):
+    """A sensor adapter's parameters in scenario ``s``: its config file with the scenario's overrides."""
     from quadrivio_sim.paths import package_file
 
     p = _defaults(cls, package_file("config", cfg))
@@ -170,9 +171,9 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     for name in ("scan", "image", "joint_states"):
         if name in sim.enabled:
             sim.enabled[name] = False
-    gp = _adapter(s, "gps", GpsAdapterParams, "gps.yaml")
-    ip = _adapter(s, "imu", ImuAdapterParams, "imu.yaml")
-    mp = _adapter(s, "mag", MagAdapterParams, "mag.yaml")
+    gp = sensor_params(s, "gps", GpsAdapterParams, "gps.yaml")
+    ip = sensor_params(s, "imu", ImuAdapterParams, "imu.yaml")
+    mp = sensor_params(s, "mag", MagAdapterParams, "mag.yaml")
     rng_g, rng_i, rng_m = node_rng(seed, GPS_NODE), node_rng(seed, IMU_NODE), node_rng(seed, MAG_NODE)
     gps, gps_lat = GpsNoise(gp.noise, rng_g), Latency(gp.latency, rng_g)
     imu, imu_lat = ImuNoise(ip.noise, rng_i, 1.0 / ip.rate), Latency(ip.latency, rng_i)

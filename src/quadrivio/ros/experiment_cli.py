@@ -10,7 +10,8 @@
 5. stops everything cleanly, then writes ``DIR/metrics.json``, ``DIR/run_info.json`` and
    the plots (``trajectory.png``, ``errors.png``, ``control.png``, ``calibration.png``).
 
-Exit status: 0 completed (the follower done; without a follower, the run's duration reached),
+Exit status: 0 completed (the follower done; without a follower or with ``run.end: duration``,
+the run's duration reached),
 1 ran but did not complete, 2 bad input or failure to start.
 """
 
@@ -88,6 +89,12 @@ class Runner:
                  f"{self.scenario.description}")
         plc_port = _free_port()  # runs in parallel (a closed-loop campaign) each have their own PLC
         excitation = str("excitation" in self.scenario.data).lower()
+        # The NMEA driver stamps a fix its receiver's latency before it reads it (on the vehicle:
+        # your receiver's; here the simulated one's)
+        from quadrivio_sim.adapter_params import GpsAdapterParams
+
+        from ..offline import sensor_params
+        fix_delay = f"gps_fix_delay:={sensor_params(self.scenario, 'gps', GpsAdapterParams, 'gps.yaml').latency.delay:g}"
         common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
                   f"excitation:={excitation}"]
         if self.args.stack == "real":
@@ -99,15 +106,20 @@ class Runner:
         else:
             self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
                                        f"rtf:={self.rtf}", f"seed:={self.seed}",
-                                       f"gps_nmea:={str(run.gps_nmea).lower()}", "start_paused:=true"] + common,
+                                       f"gps_nmea:={str(run.gps_nmea).lower()}", fix_delay, "start_paused:=true"]
+                                      + common,
                                       "roslaunch.log")
         master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
         self._wait(lambda: self._has_topic(master, "/clock") and self._has_service(master, "/simulator/unpause"),
                    120, "the simulator")
         if self.args.stack == "real":
+            # The simulated magnetometer's calibration, which sim.launch loads by default (on the
+            # vehicle: yours, from calibrate_mag)
+            import rospkg
+            mag = os.path.join(rospkg.RosPack().get_path("quadrivio_sim"), "config", "mag_calibration.yaml")
             self.launches.append(self._spawn(["roslaunch", "--wait", "quadrivio", "real.launch", "use_sim_time:=true",
-                                              "plc_host:=127.0.0.1", f"gps_device:={gps_tty}"] + common,
-                                             "roslaunch_real.log"))
+                                              "plc_host:=127.0.0.1", f"gps_device:={gps_tty}",
+                                              f"mag_calibration:={mag}", fix_delay] + common, "roslaunch_real.log"))
             self._wait(lambda: all(self._has_topic(master, t) for t in ("/localization/odom", "/follower/status",
                                                                         "/vehicle/state", "/gps/fix")),
                        120, "real.launch's stack")
@@ -274,6 +286,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 2
     runner.log(f"results in {runner.out}: run.bag, metrics.json, run_info.json, plots; logs in logs/")
     done = m.get("completed")
-    if done is None:  # no follower (an excitation run): the run's own outcome
+    if done is None or runner.scenario.run.end == "duration":
+        # no follower (an excitation run), or a run that ends on its duration: the run's own outcome
         done = outcome == "completed"
     return 0 if done else 1
