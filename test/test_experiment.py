@@ -226,6 +226,7 @@ def test_real_launch_against_the_stand_in_is_sim_launch(figure_eight, tmp_path):
     bag has the same topics as sim.launch's, with the same types, frames, rates (5 %) and
     covariance conventions, and it drives the figure eight to completion as well."""
     from quadrivio import parity
+    from quadrivio.ros.bag import topic_profile
 
     sim_out, r0 = figure_eight
     assert r0.returncode == 0
@@ -235,7 +236,7 @@ def test_real_launch_against_the_stand_in_is_sim_launch(figure_eight, tmp_path):
     m = json.loads((tmp_path / "metrics.json").read_text())
     ref = json.loads((sim_out / "metrics.json").read_text())
     assert m["completed"] is True and json.loads((tmp_path / "run_info.json").read_text())["stack"] == "real"
-    problems = parity.compare(parity.profile(str(sim_out / "run.bag")), parity.profile(str(tmp_path / "run.bag")))
+    problems = parity.compare(topic_profile(str(sim_out / "run.bag")), topic_profile(str(tmp_path / "run.bag")))
     assert problems == []
     # the GPS through NMEA and the real driver, the rest the same: as good within noise
     assert m["loc_rmse_m"] < ref["loc_rmse_m"] + 0.15 and m["xte_rmse_m"] < 0.3

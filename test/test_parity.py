@@ -38,6 +38,6 @@ def test_every_difference_is_named():
 
 
 def test_covariance_structure_not_values():
-    assert parity._pattern([-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]) == "unknown"
-    assert parity._pattern([0.2, -0.01, 0.0, -0.01, 0.3, 0.0, 0.0, 0.0, 5.0]) == "**0**000*"
-    assert parity._pattern([0.2, 0.01, 0.0, 0.01, 0.3, 0.0, 0.0, 0.0, 5.0]) == "**0**000*"
+    assert parity.pattern([-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]) == "unknown"
+    assert parity.pattern([0.2, -0.01, 0.0, -0.01, 0.3, 0.0, 0.0, 0.0, 5.0]) == "**0**000*"
+    assert parity.pattern([0.2, 0.01, 0.0, 0.01, 0.3, 0.0, 0.0, 0.0, 5.0]) == "**0**000*"

@@ -4,7 +4,8 @@ definitions are enough: no generated classes are needed)."""
 from __future__ import annotations
 
 import math
-from typing import Dict, List
+from collections import Counter, defaultdict
+from typing import Dict, Iterable, List, Optional
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from quadrivio_description.vehicle import VehicleParams
 from quadrivio_navigation.costmap import Footprint
 
 from ..metrics import RunData, Series
+from ..parity import SKIP, covariances
 
 TOPICS = {
     "ground_truth": "/ground_truth/odom",
@@ -174,3 +176,44 @@ def _grid(m):
     data = np.asarray(m.data, dtype=np.int8).reshape(info.height, info.width)
     o = info.origin
     return OccupancyGrid(data.copy(), float(info.resolution), (o.position.x, o.position.y, _yaw(o.orientation)))
+
+
+def topic_profile(bag_path: str, topics: Optional[Iterable[str]] = None, start: float = 5.0) -> Dict[str, Dict]:
+    """A run's topics for :func:`quadrivio.parity.compare`. Per topic: type, frames, children, rate [Hz] over receipt times from ``start`` s after
+    the bag's first message, and covariance patterns (the set seen for each field)."""
+    import rosbag
+
+    out: Dict[str, Dict] = {}
+    times: Dict[str, List[float]] = defaultdict(list)
+    with rosbag.Bag(bag_path) as bag:
+        info = bag.get_type_and_topic_info().topics
+        wanted = [t for t in (topics or info) if t in info and t not in SKIP]
+        t0 = bag.get_start_time() + start
+        for topic in wanted:
+            out[topic] = {"type": info[topic].msg_type, "frames": set(), "children": set(),
+                          "covariance": defaultdict(Counter), "messages": 0}
+        for topic, msg, t in bag.read_messages(topics=wanted):
+            p = out[topic]
+            p["messages"] += 1
+            if t.to_sec() >= t0:
+                times[topic].append(t.to_sec())
+            if topic in ("/tf", "/tf_static"):
+                for tr in msg.transforms:
+                    p["frames"].add(tr.header.frame_id)
+                    p["children"].add(tr.child_frame_id)
+                continue
+            header = getattr(msg, "header", None)
+            if header is not None:
+                p["frames"].add(header.frame_id)
+            if hasattr(msg, "child_frame_id"):
+                p["children"].add(msg.child_frame_id)
+            if p["messages"] <= 500:  # the convention shows in the first messages
+                for field, pat in covariances(msg):
+                    p["covariance"][field][pat] += 1
+                if hasattr(msg, "position_covariance_type"):
+                    p["covariance"]["position_covariance_type"][str(msg.position_covariance_type)] += 1
+    for topic, p in out.items():
+        ts = times.get(topic, [])
+        p["rate"] = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 2 and ts[-1] > ts[0] else math.nan
+        p["covariance"] = {k: v.most_common(1)[0][0] for k, v in p["covariance"].items()}
+    return out
