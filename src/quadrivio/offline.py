@@ -58,7 +58,8 @@ class OfflineRun:
     scenario: str
     seed: int
     truth: np.ndarray  # [t, x, y, yaw, speed] of base_link, ground-truth rate
-    antenna: np.ndarray  # [t, true e, true n, fix e, fix n, var_e, var_n, status, multipath]: every GPS epoch
+    antenna: np.ndarray  # [t, true e, true n, fix e, fix n, var_e, var_n, status, multipath, drift e, drift n]
+    #                      every GPS epoch (the drift: the receiver's own, in the fix, never published)
     estimate: np.ndarray  # [t, x, y, theta, cov_xx, cov_xy, cov_yy, cov_thth]: every keyframe
     calibration: Dict[str, float]
     counters: Dict[str, int]
@@ -234,12 +235,12 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
                 if r.position is None:
                     data = (x.stamp, math.nan, math.nan, math.nan, math.nan, math.nan, r.status)
                     antenna.append((x.stamp, x.position[0], x.position[1], math.nan, math.nan, math.nan, math.nan,
-                                    r.status, 0))
+                                    r.status, 0) + r.drift)
                 else:
                     lat, lon, alt = frame.enu_to_lla(*r.position)
                     data = (x.stamp, lat, lon, alt, r.variances[0], r.variances[1], r.status)
                     antenna.append((x.stamp, x.position[0], x.position[1], r.position[0], r.position[1],
-                                    r.variances[0], r.variances[1], r.status, int(r.multipath)))
+                                    r.variances[0], r.variances[1], r.status, int(r.multipath)) + r.drift)
                 push(gps_lat.deliver_at(x.stamp), "gps", data)
         t = sim.t
         while queue and queue[0][0] <= t + 1e-9:
@@ -320,7 +321,8 @@ def rmse(x) -> float:
 
 
 def score(r: OfflineRun, s: Scenario, settle: float = SETTLE) -> Dict[str, object]:
-    """The run's figures (see ``campaign``): errors after ``settle`` s, the raw GPS's, the
+    """The run's figures (see ``campaign``): errors after ``settle`` s, the raw GPS's and its
+    drift's alone, the
     calibration found against the truth, and per scheduled outage the error at its end and
     10 s later."""
     err = errors(r)
@@ -333,6 +335,10 @@ def score(r: OfflineRun, s: Scenario, settle: float = SETTLE) -> Dict[str, objec
         "rmse_m": rmse(late[:, 1]), "max_error_m": float(late[:, 1].max()) if len(late) else math.nan,
         "heading_rmse_deg": math.degrees(rmse(late[:, 2])),
         "gps_rmse_m": rmse(gps_err),
+        # the receiver's slow drift alone, at every epoch: no GNSS-only estimate can see it,
+        # so it is a floor for the position error (not a bound: odometry can see some of it)
+        "gps_drift_rms_m": rmse(np.hypot(*a[a[:, 0] >= settle][:, 9:11].T)) if len(a) and a.shape[1] >= 11
+        else math.nan,
         "update_p99_ms": float(np.percentile(r.update_ms, 99)) if len(r.update_ms) else math.nan,
         "update_cpu_p99_ms": float(np.percentile(r.update_cpu_ms, 99)) if len(r.update_cpu_ms) else math.nan,
         "cpu_frac": r.cpu_frac, "wall_s": r.wall,

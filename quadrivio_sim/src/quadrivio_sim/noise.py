@@ -160,6 +160,7 @@ class GpsReading:
     multipath: bool
     satellites: int
     hdop: float
+    drift: Tuple[float, float] = (math.nan, math.nan)  # the receiver's horizontal drift in it [m] (not published)
 
 
 class GpsNoise:
@@ -205,13 +206,14 @@ class GpsNoise:
         sats = max(0, p.satellites - (5 if degraded else 0))
         hdop = p.hdop * k
         if outage:
-            return GpsReading(t, NO_FIX, None, tuple(velocity), (math.nan,) * 3, False, 0, 99.9)  # type: ignore[arg-type]
+            return GpsReading(t, NO_FIX, None, tuple(velocity), (math.nan,) * 3, False, 0, 99.9,  # type: ignore[arg-type]
+                              (float(drift[0]), float(drift[1])))
         noise = np.array([white[0] * p.horizontal_std * k + drift[0], white[1] * p.horizontal_std * k + drift[1],
                           white[2] * p.vertical_std * k + vdrift])
         pos = np.asarray(position, dtype=float) + noise + (self._offset if multipath else 0.0)
         status = STATUS_BY_NAME[p.degradation.status] if degraded else STATUS_BY_NAME[p.status]
         return GpsReading(t, status, tuple(pos.tolist()), tuple(velocity), (var_h, var_h, var_v),  # type: ignore[arg-type]
-                          multipath, sats, hdop)
+                          multipath, sats, hdop, (float(drift[0]), float(drift[1])))
 
 
 # ---------------------------------------------------------------------- IMU
