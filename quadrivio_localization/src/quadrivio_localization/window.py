@@ -68,7 +68,8 @@ class FixedLagWindow:
         ``reach``'s to the newest (those the update re-eliminates), one per older chunk for up
         to three chunks before (a clique straddling the reach brings older frontals along),
         one per stamp for the newest stamps, and level 0 shared by the chunks older still
-        (the update leaves them be)."""
+        (the update leaves them be; should it re-eliminate them after all, their order is
+        not assured, which is noted for :meth:`_marginalize` to check)."""
         stamps = sorted(set(self.stamps.values()))
         chunks = [self._chunk(t) for t in stamps]
         distinct = sorted(set(chunks))
