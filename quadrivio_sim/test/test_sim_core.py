@@ -70,9 +70,47 @@ def test_sensor_rates(vehicle, actuators):
     assert len(out["gps"]) == 10
     assert len(out["scan"]) == 2 * 20
     assert len(out["ground_truth"]) == 100
-    assert len(out["plc_state"]) == 100
+    assert len(out["plc_state"]) == 99  # the 100th is on the PLC link (2 ms) until the next step
     stamps = [s.stamp for s in out["imu"]]
     assert np.allclose(np.diff(stamps), 0.01)
+
+
+def _plc_deliveries(sim, seconds):
+    out = []
+    while sim.t < seconds - 1e-9:
+        for name, sample in sim.step():
+            if name == "plc_state":
+                out.append((sim.t, sample.plc_time))
+    return out
+
+
+@pytest.mark.parametrize("delay,jitter", [(0.002, 0.0005), (0.013, 0.0), (0.025, 0.004)])
+def test_the_plc_link_delays_states_to_the_first_step_after(vehicle, actuators, delay, jitter):
+    """STATE frames leave at the first physics step at or after plc_time + the link's delay
+    (a delay below a step arrives one step late), in order, with the same delays for the
+    same seed, after a reset too."""
+    plc = dict(load_yaml(package_file("config", "sim.yaml"))["plc"], latency={"delay": delay, "jitter": jitter})
+    sim = make_sim(vehicle, actuators, plc=plc)
+    got = _plc_deliveries(sim, 2.0)
+    dt = sim.dt
+    assert len(got) >= 100 - math.ceil((delay + 4 * jitter) / 0.02) - 1
+    lag = np.array([t - pt for t, pt in got])
+    assert np.all(lag >= delay - 4 * jitter - 1e-9) and np.all(lag > 0.0)
+    if jitter == 0.0:
+        assert np.allclose(lag, math.ceil(delay / dt - 1e-9) * dt)  # exactly the first step at or after
+    else:
+        assert np.all(lag < delay + 5 * jitter + dt)
+    assert [pt for _, pt in got] == sorted(pt for _, pt in got)
+    again = make_sim(vehicle, actuators, plc=plc)
+    assert _plc_deliveries(again, 2.0) == got
+    sim.reset()
+    assert _plc_deliveries(sim, 2.0) == got
+
+
+def test_no_plc_latency_delivers_in_the_same_step(vehicle, actuators):
+    plc = dict(load_yaml(package_file("config", "sim.yaml"))["plc"], latency={"delay": 0.0, "jitter": 0.0})
+    got = _plc_deliveries(make_sim(vehicle, actuators, plc=plc), 1.0)
+    assert len(got) == 50 and all(abs(t - pt) < 1e-9 for t, pt in got)
 
 
 def test_rate_must_divide_physics_step():

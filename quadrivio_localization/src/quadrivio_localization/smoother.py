@@ -72,7 +72,7 @@ UT = 1e6  # tesla -> microtesla
 # poses (through the heading) and the kinematic calibration (through the arc) need it.
 # A relinearised variable re-eliminates the window from it to the newest keyframe.
 RELINEARIZE = gtsam.ISAM2ThresholdMap()
-for _char, _limit in (("x", [0.02, 0.02, 0.005]), ("k", [0.002, 0.002, 0.002]), ("b", [1e9]), ("m", [1e9] * 5),
+for _char, _limit in (("x", [0.02, 0.02, 0.005]), ("k", [0.002, 0.002, 0.002]), ("b", [1e9]), ("m", [0.5, 0.5, 0.005, 0.005, 0.005]),
                       ("g", [1e9] * 2)):
     RELINEARIZE.insert((_char, np.array(_limit, float)))
 CALIBRATION_NAMES = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias", "mag_hard_iron_x",

@@ -43,7 +43,7 @@ import gtsam
 
 
 class FixedLagWindow:
-    def __init__(self, lag: float, params: gtsam.ISAM2Params, chunk: float = 1.0, relinearize_span: float = 0.5) -> None:
+    def __init__(self, lag: float, params: gtsam.ISAM2Params, chunk: float = 1.0, relinearize_span: float = 1.0) -> None:
         if not chunk > 0.0:
             raise ValueError(f"chunk must be > 0 s, got {chunk}")
         self.lag = lag

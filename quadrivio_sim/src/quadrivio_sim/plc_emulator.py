@@ -39,6 +39,7 @@ from quadrivio_description.config import param
 from quadrivio_plc import protocol as P
 
 from .actuators import Actuation, LowLevelControl
+from .noise import LatencyParams
 
 
 @dataclass(frozen=True)
@@ -57,6 +58,10 @@ class PlcParams:
     key_file: str = param("", doc="shared session key; empty: $ROS_HOME/quadrivio_plc.key (created if missing)")
     initial_mode: str = param("SAFE", choices=("HALT", "SAFE"), doc="mode at power-on")
     hold_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake applied in SAFE and HALT")
+    latency: LatencyParams = param(LatencyParams(0.002, 0.0005),
+                                   doc="the link's delay of STATE frames (the vehicle's X20 over Ethernet, its task "
+                                       "cycle included); a frame leaves at the first physics step at or after "
+                                       "plc_time + delay")
 
 
 ALLOWED = {

@@ -17,8 +17,10 @@ into messages.
 
 from __future__ import annotations
 
+import zlib
+from collections import deque
 from dataclasses import dataclass
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -28,6 +30,7 @@ from quadrivio_description.vehicle import VehicleParams
 from quadrivio_plc import protocol as P
 
 from .actuators import ActuatorParams, LowLevelControl
+from .noise import Latency
 from .plc_emulator import PlcLogic, PlcParams
 from .script import SetpointScript
 from .sensors import (CameraSensor, GpsSensor, ImuSensor, LaserSensor, MagSensor, SensorsParams)
@@ -138,6 +141,14 @@ class Simulator:
         self.enabled: Dict[str, bool] = {name: True for name, _, _ in self.outputs}
         self.script: Optional[SetpointScript] = None
         self.steps = 0
+        self._plc_link_start()
+
+    def _plc_link_start(self) -> None:
+        """The PLC link's latency: STATE frames wait here until their delivery step (its own
+        seeded draws: the same seed, the same delays, after a reset too)."""
+        self.plc_link = Latency(self.params.plc.latency,
+                                np.random.default_rng([self.params.seed, zlib.crc32(b"plc_link")]))
+        self.plc_pending: Deque[Tuple[float, object]] = deque()  # (delivery time, STATE)
 
     @property
     def t(self) -> float:
@@ -150,6 +161,7 @@ class Simulator:
         self.world.reset(spawn)
         self.plc.reset(0.0)
         self.imu.reset()
+        self._plc_link_start()
 
     def step(self) -> List[Tuple[str, object]]:
         """Advance one physics step; returns the samples due at the new time."""
@@ -170,7 +182,14 @@ class Simulator:
         due = []
         for name, period, sampler in self.outputs:
             if self.steps % period == 0 and self.enabled[name]:
-                due.append((name, sampler(t)))
+                if name == "plc_state" and not self.plc_link.zero:
+                    self.plc_pending.append((self.plc_link.deliver_at(t), sampler(t)))
+                else:
+                    due.append((name, sampler(t)))
+        # STATE frames leave at the first step at or after plc_time + the link's delay: a
+        # delay below one physics step arrives one step late (10 ms at dt 10 ms)
+        while self.plc_pending and self.plc_pending[0][0] <= t + 1e-9:
+            due.append(("plc_state", self.plc_pending.popleft()[1]))
         return due
 
     def _ground_truth(self, t: float) -> GroundTruth:
