@@ -97,18 +97,15 @@ class Runner:
         fix_delay = f"gps_fix_delay:={sensor_params(self.scenario, 'gps', GpsAdapterParams, 'gps.yaml').latency.delay:g}"
         common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
                   f"excitation:={excitation}"]
+        sim = ["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", f"rtf:={self.rtf}", f"seed:={self.seed}",
+               "start_paused:=true"] + common
         if self.args.stack == "real":
             # The vehicle's stand-in, then real.launch unchanged against it on the same master
             gps_tty = os.path.join(self.out, "logs", "gps_tty")
-            self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", "hardware:=true",
-                                       f"rtf:={self.rtf}", f"seed:={self.seed}", f"gps_tty:={gps_tty}",
-                                       "start_paused:=true"] + common, "roslaunch.log")
+            sim += ["hardware:=true", f"gps_tty:={gps_tty}"]
         else:
-            self.launch = self._spawn(["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch",
-                                       f"rtf:={self.rtf}", f"seed:={self.seed}",
-                                       f"gps_nmea:={str(run.gps_nmea).lower()}", fix_delay, "start_paused:=true"]
-                                      + common,
-                                      "roslaunch.log")
+            sim += [f"gps_nmea:={str(run.gps_nmea).lower()}", fix_delay]
+        self.launch = self._spawn(sim, "roslaunch.log")
         master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
         self._wait(lambda: self._has_topic(master, "/clock") and self._has_service(master, "/simulator/unpause"),
                    120, "the simulator")
@@ -139,10 +136,14 @@ class Runner:
         rospy.ServiceProxy("/simulator/unpause", Trigger)()
         self.log(f"running (logs in {os.path.relpath(os.path.join(self.out, 'logs'))})")
 
+    def _launch_ended(self) -> bool:
+        """Whether a roslaunch of the run exited (a required node died, or it failed to start)."""
+        return any(p.poll() is not None for p in [self.launch] + self.launches)
+
     def _wait(self, cond, timeout: float, what: str) -> None:
         deadline = time.monotonic() + timeout
         while not cond():
-            if self.launch.poll() is not None or any(p.poll() is not None for p in self.launches):
+            if self._launch_ended():
                 raise RuntimeError(f"roslaunch exited while waiting for {what}; see "
                                    f"{os.path.join(self.out, 'logs')}")
             if time.monotonic() > deadline:
@@ -189,7 +190,7 @@ class Runner:
             t_start = now if t_start is None and now > 0 else t_start
             st = self.status
             wall = time.monotonic() - self.wall0
-            if self.launch.poll() is not None or any(p.poll() is not None for p in self.launches):
+            if self._launch_ended():
                 outcome = "a node died (see logs/roslaunch*.log)"
                 break
             if run.end == "path_done" and st is not None and st.status in (st.DONE, st.ABORTED):
