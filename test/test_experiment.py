@@ -6,6 +6,7 @@ import subprocess
 
 import pytest
 import rosbag
+from conftest import short_scenario
 
 from quadrivio.metrics import CONTRACT_KEYS, PLANNED_KEYS
 
@@ -194,17 +195,9 @@ def test_an_excitation_run_calibrates_back_to_the_simulators_loops(tmp_path):
 def test_a_closed_loop_campaign_runs_the_whole_stack_per_run(tmp_path):
     """`campaign --closed-loop`: each run is an `experiment` (the stack on its own master),
     its metrics in the table, its folder (bag, metrics.json, plots) kept under runs/."""
-    import yaml
-    from quadrivio.scenario import resolve
-
-    with open(resolve("rtk")) as f:
-        data = yaml.safe_load(f)
-    data.update(name="short_rtk", path={"figure_eight": {"laps": 1}},
-                run=dict(data["run"], max_duration=25.0, end="duration"))
-    path = tmp_path / "short_rtk.yaml"
-    path.write_text(yaml.safe_dump(data))
+    path = short_scenario(tmp_path, max_duration=25.0)
     out = tmp_path / "out"
-    r = subprocess.run(["rosrun", "quadrivio", "campaign", str(path), "--closed-loop", "--seeds", "1", "--rtf", "2",
+    r = subprocess.run(["rosrun", "quadrivio", "campaign", path, "--closed-loop", "--seeds", "1", "--rtf", "2",
                         "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     result = json.loads((out / "campaign.json").read_text())

@@ -7,6 +7,7 @@ import json
 import os
 
 import pytest
+from conftest import short_scenario
 
 from quadrivio import campaign
 
@@ -107,28 +108,12 @@ def test_bad_arguments(tmp_path):
         assert e.value.code == 2
 
 
-def _short_scenario(folder, name="short_rtk", laps=1, max_duration=30.0):
-    """rtk cut to ``max_duration`` s of one lap (a campaign's plumbing, not its figures)."""
-    import yaml
-    from quadrivio.scenario import resolve
-
-    with open(resolve("rtk")) as f:
-        data = yaml.safe_load(f)
-    data["name"] = name
-    data["path"] = {"figure_eight": {"laps": laps}}
-    data["run"] = dict(data["run"], max_duration=max_duration, end="duration")
-    path = os.path.join(str(folder), f"{name}.yaml")
-    with open(path, "w") as f:
-        yaml.safe_dump(data, f)
-    return path
-
-
 def test_a_campaign_runs_on_the_scheduler_it_is_given(tmp_path):
     """--scheduler ADDRESS: the runs are tasks of that scheduler (a cluster of machines in
     use; here a scheduler and one worker process started by the test), no local cluster."""
     from distributed import LocalCluster
 
-    path = _short_scenario(tmp_path)
+    path = short_scenario(tmp_path)
     out = str(tmp_path / "out")
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
                       silence_logs=40) as cluster:
@@ -141,7 +126,7 @@ def test_a_campaign_runs_on_the_scheduler_it_is_given(tmp_path):
 
 
 def test_an_unreachable_scheduler_is_named(tmp_path, capsys):
-    path = _short_scenario(tmp_path)
+    path = short_scenario(tmp_path)
     out = str(tmp_path / "out")
     code = campaign.main([path, "--seeds", "1", "--out", out, "--scheduler", "tcp://127.0.0.1:9"])
     assert code == 2

@@ -13,6 +13,7 @@
 #include <ros/ros.h>
 #include <nav_msgs/Odometry.h>
 #include <quadrivio_localization/Calibration.h>
+#include <quadrivio_localization/lockstep.h>
 #include <quadrivio_localization/predictor.h>
 #include <quadrivio_plc/VehicleState.h>
 
@@ -26,7 +27,7 @@ namespace ql = quadrivio_localization;
 class PredictorNode
 {
 public:
-  PredictorNode() : nh_(), pnh_("~")
+  PredictorNode() : nh_(), pnh_("~"), lockstep_(nh_)
   {
     // The vehicle file's value, or the scenario's vehicle: override of it (as vehicle_params() in Python)
     auto vehicle = [this](const std::string& key, double& value) {
@@ -66,11 +67,12 @@ public:
     ratio_ = ratio;
     max_delta_ = max_angle * ratio;
     core_.reset(new ql::Predictor(wheelbase, ratio, max_delta_));
-    pub_ = nh_.advertise<nav_msgs::Odometry>("localization/predicted", 10);
-    sub_odom_ = nh_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
-    sub_state_ = nh_.subscribe("vehicle/state", 100, &PredictorNode::onState, this);
-    sub_cal_ = nh_.subscribe("localization/calibration", 2, &PredictorNode::onCalibration, this);
-    timer_ = nh_.createTimer(ros::Duration(1.0 / rate_), &PredictorNode::onTimer, this);
+    // In lockstep (sim.launch lockstep:=true) inputs and the timer run in the simulator's rounds.
+    pub_ = lockstep_.advertise<nav_msgs::Odometry>("localization/predicted", 10);
+    sub_odom_ = lockstep_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
+    sub_state_ = lockstep_.subscribe("vehicle/state", 100, &PredictorNode::onState, this);
+    sub_cal_ = lockstep_.subscribe("localization/calibration", 2, &PredictorNode::onCalibration, this);
+    lockstep_.addTimer(1.0 / rate_, [this]() { onTimer(); });
     ROS_INFO("predictor: %g Hz, horizon %g s, wheelbase %g m", rate_, horizon_, wheelbase);
   }
 
@@ -127,7 +129,7 @@ private:
     core_->setCalibration(c);
   }
 
-  void onTimer(const ros::TimerEvent&)
+  void onTimer()
   {
     const ros::Time now = ros::Time::now();
     nav_msgs::Odometry out;
@@ -172,13 +174,13 @@ private:
         out.twist.twist.angular.z = w;
       }
     }
-    pub_.publish(out);
+    lockstep_.publish(pub_, out);
   }
 
   ros::NodeHandle nh_, pnh_;
   ros::Publisher pub_;
   ros::Subscriber sub_odom_, sub_state_, sub_cal_;
-  ros::Timer timer_;
+  ql::Lockstep lockstep_;
   std::unique_ptr<ql::Predictor> core_;
   std::mutex mutex_;
   double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, max_future_ = 0.5, z_ = 0.0;

@@ -296,6 +296,7 @@ class PlcServer:
         self.session: Optional[_Conn] = None
         self.pending: Dict[socket.socket, _Conn] = {}
         self.frames_sent = 0
+        self.states_sent = self.acks_sent = 0  # in a session (lockstep counts them)
         self.stats = ServerStats()
         self._logged: Dict[str, float] = {}
         self._suppressed: Dict[str, int] = {}
@@ -422,12 +423,14 @@ class PlcServer:
                 self._log_limited("stale", "warn", f"PLC frame seq {seq} from {conn.peer} does not advance "
                                                    f"(last {conn.last_seq}): replayed or reordered, ignored")
                 self._send(conn, P.Ack(seq, getattr(msg, "TYPE", 0), P.STALE, self.logic.mode))
+                self.acks_sent += 1
                 continue
             conn.last_seq, conn.last_rx = seq, t
             self.stats.frames += 1
             ack = self.logic.handle(t, seq, msg)
             if ack is not None:
                 self._send(conn, ack)
+                self.acks_sent += 1
         self._flush(conn)
 
     def _authenticate(self, conn: _Conn, frames, t: float):
@@ -487,6 +490,7 @@ class PlcServer:
         if self.session is not None:
             conn = self.session
             self._send(conn, state)
+            self.states_sent += 1
             self._flush(conn)
 
     def close(self) -> None:

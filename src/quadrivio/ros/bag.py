@@ -217,3 +217,28 @@ def topic_profile(bag_path: str, topics: Optional[Iterable[str]] = None, start: 
         p["rate"] = (len(ts) - 1) / (ts[-1] - ts[0]) if len(ts) > 2 and ts[-1] > ts[0] else math.nan
         p["covariance"] = {k: v.most_common(1)[0][0] for k, v in p["covariance"].items()}
     return out
+
+
+def streams(bag_path: str, skip: Iterable[str] = ()) -> Dict[tuple, List[bytes]]:
+    """Per (topic, publisher) the serialised messages of a bag, in order, ``header.seq``
+    zeroed (:func:`quadrivio.determinism.compare`); topics in ``skip`` left out."""
+    import rosbag
+
+    skip = set(skip)
+    out: Dict[tuple, List[bytes]] = defaultdict(list)
+    try:
+        bag = rosbag.Bag(bag_path)
+    except (OSError, rosbag.ROSBagException) as exc:
+        raise BagError(f"{bag_path}: cannot read the bag: {exc}") from exc
+    with bag:
+        for topic, raw, _t, header in bag.read_messages(raw=True, return_connection_header=True):
+            if topic in skip:
+                continue
+            caller = header.get("callerid", b"?")
+            data = raw[1]
+            if getattr(raw[4], "_has_header", False) and len(data) >= 4:
+                # header.seq is the transport's: rospy numbers a latched message once per
+                # subscriber it reaches, so it tells who connected first, not what the node did
+                data = b"\0\0\0\0" + bytes(data[4:])
+            out[(topic, caller.decode() if isinstance(caller, bytes) else str(caller))].append(data)
+    return out

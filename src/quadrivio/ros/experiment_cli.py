@@ -98,7 +98,9 @@ class Runner:
         common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
                   f"excitation:={excitation}"]
         sim = ["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", f"rtf:={self.rtf}", f"seed:={self.seed}",
-               "start_paused:=true"] + common
+               "start_paused:=true", f"run_until:={run.max_duration:g}"] + common
+        if self.args.lockstep:
+            sim.append("lockstep:=true")
         if self.args.stack == "real":
             # The vehicle's stand-in, then real.launch unchanged against it on the same master
             gps_tty = os.path.join(self.out, "logs", "gps_tty")
@@ -241,12 +243,19 @@ def main(argv: Optional[List[str]] = None) -> int:
                    help="sim: sim.launch (default); real: sim.launch hardware:=true and real.launch against it, "
                         "as on the vehicle")
     p.add_argument("--wall-timeout", type=float, default=0.0, help="give up after this many wall seconds (0: never)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the simulator steps only when the closed loop has consumed the last tick: the same seed "
+                        "gives the same run, message for message (with --rtf 0 as fast as the loop goes)")
     args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
     if args.seed is not None and args.seed < 0:
         print("experiment: --seed must be a non-negative integer", file=sys.stderr)
         return 2
     if args.rtf is not None and not (math.isfinite(args.rtf) and args.rtf >= 0.0):
         print(f"experiment: --rtf {args.rtf} must be a finite number >= 0 (0: as fast as possible)", file=sys.stderr)
+        return 2
+    if args.lockstep and args.stack == "real":
+        print("experiment: --lockstep needs --stack sim (real.launch's nodes start after the simulator has armed)",
+              file=sys.stderr)
         return 2
     if args.wall_timeout < 0.0 or not math.isfinite(args.wall_timeout):
         print(f"experiment: --wall-timeout {args.wall_timeout} must be >= 0 (0: never)", file=sys.stderr)
@@ -273,7 +282,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
-            "stack": args.stack,
+            "stack": args.stack, "lockstep": args.lockstep,
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
     tmp = os.path.join(runner.out, ".run_info.json.tmp")
     with open(tmp, "w") as fh:

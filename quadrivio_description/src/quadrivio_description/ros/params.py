@@ -28,8 +28,9 @@ def fatal(message: str) -> NoReturn:
 
 
 def private_params() -> Dict[str, Any]:
+    """The node's private parameters, less ``~lockstep`` (every node's: see ros/lockstep.py)."""
     params = rospy.get_param("~", {})
-    return dict(params) if isinstance(params, dict) else {}
+    return {k: v for k, v in params.items() if k != "lockstep"} if isinstance(params, dict) else {}
 
 
 def node_params(cls: Type[T], data: Dict[str, Any] = None, source: str = "") -> T:

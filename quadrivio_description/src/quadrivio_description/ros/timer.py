@@ -25,9 +25,11 @@ import rospy
 from ..guards import InputGuard
 
 
-def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str) -> rospy.Timer:
+def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str):
     """``rospy.Timer(rospy.Duration(period), callback)`` whose exceptions are logged, not
-    fatal, and which goes on after /clock jumps back."""
+    fatal, and which goes on after /clock jumps back. In lockstep (a member that called
+    ``lockstep.install()``) it runs in the simulator's rounds instead, at the multiples of
+    ``period`` in sim time."""
 
     def run(event) -> None:
         check_clock()
@@ -38,6 +40,11 @@ def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], No
                 return
             rospy.logerr_throttle(5.0, "%s failed (retrying every cycle):\n%s", what, traceback.format_exc())
 
+    from . import lockstep
+
+    m = lockstep.member()
+    if m is not None:  # run in the simulator's rounds (see lockstep.py), not on a thread
+        return m.add_timer(period, run)
     return rospy.Timer(rospy.Duration(period), run, reset=True)
 
 

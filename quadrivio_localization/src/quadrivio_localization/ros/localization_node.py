@@ -31,6 +31,7 @@ from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
@@ -222,5 +223,6 @@ class LocalizationNode:
 
 def main() -> None:
     rospy.init_node("localization")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     LocalizationNode()
     rospy.spin()

@@ -23,6 +23,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from diagnostic_updater import Updater
 
 from quadrivio_description.config import ConfigError
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import fatal, node_params, with_scenario
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
@@ -101,5 +102,6 @@ class ExcitationNode:
 
 def main() -> None:
     rospy.init_node("excitation")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     ExcitationNode()
     rospy.spin()

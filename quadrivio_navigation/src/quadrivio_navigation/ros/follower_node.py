@@ -35,6 +35,7 @@ from diagnostic_updater import Updater
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint
@@ -173,5 +174,6 @@ class FollowerNode:
 
 def main() -> None:
     rospy.init_node("follower")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     FollowerNode()
     rospy.spin()

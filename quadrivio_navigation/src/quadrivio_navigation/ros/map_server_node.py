@@ -23,6 +23,7 @@ import rospy
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from nav_msgs.srv import GetMap, GetMapResponse
 
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import fatal, node_params, with_scenario
 
 from ..maps import MapError, MapParams, OccupancyGrid as Grid, load_map, resolve_map_file
@@ -74,5 +75,6 @@ class MapServer:
 
 def main() -> None:
     rospy.init_node("map_server")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     MapServer()
     rospy.spin()

@@ -38,6 +38,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_description.config import ConfigError, param
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, split_params,
                                              vehicle_params, with_scenario)
 from quadrivio_description.ros.timer import input_guard, publish
@@ -285,5 +286,6 @@ class PlannerNode:
 
 def main() -> None:
     rospy.init_node("planner")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     PlannerNode()
     rospy.spin()

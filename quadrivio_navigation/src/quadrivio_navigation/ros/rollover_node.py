@@ -24,6 +24,7 @@ from sensor_msgs.msg import Imu
 
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
@@ -156,5 +157,6 @@ class RolloverNode:
 
 def main() -> None:
     rospy.init_node("rollover_monitor")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     RolloverNode()
     rospy.spin()

@@ -32,6 +32,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from diagnostic_updater import Updater
 
 from quadrivio_description.config import param
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import node_params, private_params, split_params
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
@@ -65,10 +66,19 @@ class PlcClientNode:
         self.link_down_published = -1e9
         self.clock = PlcClock()
         self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
+        on_state, on_ack = self._on_state, self._on_ack
+        self.lockstep = lockstep.member()
+        if self.lockstep is not None:
+            # STATE frames are handled in the simulator's rounds, like messages; ACKs at once
+            ls = self.lockstep
+            on_state = lambda s: ls.frame(lockstep.STATE_TOPIC, lambda: self._on_state(s))  # noqa: E731
+            on_ack = lambda a: ls.frame(lockstep.ACK_TOPIC, lambda: self._on_ack(a))  # noqa: E731
         self.link = PlcLink(self.p.host, self.p.port, connect_timeout=self.p.connect_timeout,
                             reconnect_min=self.p.reconnect_min, reconnect_max=self.p.reconnect_max,
-                            on_state=self._on_state, on_ack=self._on_ack, on_event=self._log,
+                            on_state=on_state, on_ack=on_ack, on_event=self._log,
                             key_file=self.p.key_file)
+        if self.lockstep is not None:
+            self.lockstep.link(lambda: self.link.connected, lambda: self.link.stats.frames_sent)
         rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO, queue_size=10)
         rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint, P.SOURCE_MANUAL, queue_size=10)
         rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
@@ -124,8 +134,7 @@ class PlcClientNode:
             rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
         if self.np.initial_mode and not self.initial_sent:
             self.initial_sent = True
-            threading.Thread(target=self._request_mode, args=(P.MODE_BY_NAME[self.np.initial_mode],),
-                             daemon=True).start()
+            self._in_background(self._request_mode, P.MODE_BY_NAME[self.np.initial_mode])
 
     def _on_ack(self, ack: P.Ack) -> None:
         self.mode = ack.mode
@@ -202,7 +211,15 @@ class PlcClientNode:
         if 0.0 <= now - getattr(self, "_interlock_stop", -1e9) < 0.2:
             return
         self._interlock_stop = now
-        threading.Thread(target=self._request_mode, args=(P.MODE_SAFE,), daemon=True).start()
+        self._in_background(self._request_mode, P.MODE_SAFE)
+
+    def _in_background(self, fn, *args) -> None:
+        """``fn(*args)`` on a thread of its own; in lockstep at once, inside the round (the
+        simulator answers the request while it waits for the round)."""
+        if self.lockstep is not None:
+            fn(*args)
+        else:
+            threading.Thread(target=fn, args=args, daemon=True).start()
 
     # ------------------------------------------------------------------ mode
     def _request_mode(self, mode: int):
@@ -272,5 +289,6 @@ def main() -> None:
     # default 5 ms switch interval of whichever rospy thread holds it.
     sys.setswitchinterval(2e-4)
     rospy.init_node("plc_client")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     PlcClientNode()
     rospy.spin()

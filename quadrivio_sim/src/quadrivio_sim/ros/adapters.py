@@ -38,6 +38,7 @@ from diagnostic_updater import Updater
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
+from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
@@ -318,5 +319,6 @@ ADAPTERS = {"gps_adapter": GpsAdapter, "imu_adapter": ImuAdapter, "mag_adapter":
 
 def main(kind: str) -> None:
     rospy.init_node(kind)
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
     ADAPTERS[kind]()
     rospy.spin()

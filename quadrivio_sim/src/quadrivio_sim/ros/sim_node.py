@@ -59,6 +59,7 @@ from quadrivio_plc import protocol as P
 from quadrivio_sim.msg import RawGps
 from quadrivio_sim.srv import Step, StepResponse
 
+from .lockstep_driver import LockstepDriver
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import Pacer
@@ -136,6 +137,12 @@ class SimNode:
         self.behind_warned = 0.0
         self.pacer = Pacer(self.rtf, self.np.max_lag)
         self.stopped = False
+        self.stop_event = threading.Event()
+        self.lockstep: Optional[LockstepDriver] = None
+        if rospy.get_param("/lockstep/enabled", False):
+            if self.np.clock_every != 1:
+                fatal(f"lockstep needs ~clock_every = 1 (a round per /clock tick), not {self.np.clock_every}")
+            self.lockstep = LockstepDriver(self.server, lambda: self.stop_event.is_set() or rospy.is_shutdown())
 
         with warnings.catch_warnings():
             # Synchronous on purpose: no writer thread per subscriber (each /clock tick would
@@ -251,6 +258,11 @@ class SimNode:
         self.pacer.anchor(self.sim.t, time.monotonic())
 
     def spin(self, stop: threading.Event) -> None:
+        self.stop_event = stop
+        if self.lockstep is not None and not self.lockstep.arm():
+            self.server.close()
+            self.sim.close()
+            return
         # No /clock before the first step: time 0 means "no time yet" to every ROS node.
         if self.sim.t > 0.0:
             self._publish_clock()
@@ -313,6 +325,8 @@ class SimNode:
                 self.server.poll(0.0)
         if self.sim.steps % self.np.clock_every == 0:
             self._publish_clock()
+            if self.lockstep is not None:  # the loop consumes this tick before the next step
+                self.lockstep.settle(self.sim.t)
 
     def _publish_clock(self) -> None:
         stamp = _stamp(self.sim.t)

@@ -1,0 +1,28 @@
+"""Names shared by both sides of lockstep (``quadrivio_description.ros.lockstep``, the
+members; ``quadrivio_sim.lockstep``, the simulator). ROS-free."""
+
+from __future__ import annotations
+
+from typing import Dict, List
+
+COMMAND, REPORT = "/lockstep/command", "/lockstep/report"
+# Not held back: time itself, the protocol, and topics that are not the loop's data flow.
+EXCLUDED = frozenset(("/clock", COMMAND, REPORT, "/rosout", "/rosout_agg", "/tf", "/tf_static", "/diagnostics",
+                      "/diagnostics_agg", "/diagnostics_toplevel_state"))
+# The PLC link's pseudo-topics, published by the emulated PLC: STATE frames (handled in the
+# client's rounds) and ACK frames (handled on arrival).
+PLC, STATE_TOPIC, ACK_TOPIC = "plc", "plc/state", "plc/ack"
+
+
+def member_names(params: Dict) -> List[str]:
+    """The nodes marked ``lockstep: true`` in a parameter tree (``rospy.get_param("/")``)."""
+    found: List[str] = []
+
+    def walk(ns: str, d: Dict) -> None:
+        for k, v in d.items():
+            if k == "lockstep" and v is True:
+                found.append(ns or "/")
+            elif isinstance(v, dict):
+                walk(f"{ns}/{k}", v)
+    walk("", params if isinstance(params, dict) else {})
+    return sorted(found)

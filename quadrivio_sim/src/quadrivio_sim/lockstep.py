@@ -1,0 +1,137 @@
+"""The simulator's side of lockstep (see ``quadrivio_description.ros.lockstep`` for the
+protocol): which members a round must name, what its watermark is, and when the graph is
+ready to start. ROS-free; the node feeds it the members' reports and its own counts.
+
+The PLC link is two pseudo-topics published by ``PLC`` (the emulated PLC, counted by the
+simulator): ``plc/state`` (STATE frames, which the client handles in its rounds) and
+``plc/ack`` (ACK frames, handled on arrival); the client's own frames are counted in its
+report's ``link.sent`` and must have reached the emulated PLC before the loop goes on.
+"""
+
+from __future__ import annotations
+
+from typing import Dict, Iterable, List, Optional, Set, Tuple
+
+from quadrivio_description.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC
+
+Watermark = Dict[str, Dict[str, int]]
+
+
+class Coordinator:
+    def __init__(self, members: Iterable[str], own_name: str) -> None:
+        self.members: List[str] = sorted(members)
+        self.own = own_name
+        self.reports: Dict[str, dict] = {}
+        self.told: Dict[str, Watermark] = {m: {} for m in self.members}  # the last watermark each handled
+
+    def set_members(self, members: Iterable[str]) -> None:
+        """The member list (before arming: it is read again until then)."""
+        self.members = sorted(members)
+        for m in self.members:
+            self.told.setdefault(m, {})
+
+    # ------------------------------------------------------------- reports
+    def on_report(self, r: dict) -> bool:
+        """Keep member ``r["node"]``'s newest report; False for a node that is not a member."""
+        node = r.get("node")
+        if node not in self.told:
+            return False
+        old = self.reports.get(node)
+        if old is None or r.get("seq", -1) >= old.get("seq", -1):
+            self.reports[node] = r
+        return True
+
+    def answered(self, nodes: Iterable[str], seq: int) -> List[str]:
+        """The nodes among ``nodes`` that have not answered round ``seq`` yet."""
+        return [n for n in nodes if self.reports.get(n, {}).get("seq", -2) < seq]
+
+    def errors(self, nodes: Iterable[str], seq: int) -> List[Tuple[str, str]]:
+        return [(n, self.reports[n]["error"]) for n in nodes
+                if self.reports.get(n, {}).get("seq") == seq and self.reports[n].get("error")]
+
+    # ----------------------------------------------------------- start-up
+    def missing(self) -> List[str]:
+        return [m for m in self.members if m not in self.reports]
+
+    def not_connected(self, own_pubs: Dict[str, int], plc_session: bool) -> List[str]:
+        """What keeps the graph from starting: ``"<subscriber> <- <topic> (k of n
+        publishers)"`` for each member subscription that is not yet connected to every
+        member publishing it (and to the simulator when it publishes it)."""
+        publishers: Dict[str, int] = {t: 1 for t in own_pubs}
+        for r in self.reports.values():
+            for t in r.get("pubs", {}):
+                publishers[t] = publishers.get(t, 0) + 1
+        if plc_session:
+            publishers[STATE_TOPIC] = publishers[ACK_TOPIC] = 1
+        subscribers: Dict[str, int] = {}
+        out = []
+        for node in self.members:
+            r = self.reports.get(node)
+            if r is None:
+                continue
+            for t, n in sorted(r.get("subs", {}).items()):
+                subscribers[t] = subscribers.get(t, 0) + 1
+                want = publishers.get(t, 0)
+                if t in (STATE_TOPIC, ACK_TOPIC) and not plc_session:
+                    want = 1
+                if n < want:
+                    out.append(f"{node} <- {t} ({n} of {want} publishers)")
+        # The publisher's side too: a subscriber lists a connection before its handshake is
+        # done, and what is published before the publisher has it is lost to that subscriber.
+        for node, pubs in [(self.own, own_pubs)] + [(n, self.reports[n].get("pubs", {}))
+                                                      for n in self.members if n in self.reports]:
+            for t, n in sorted(pubs.items()):
+                want = subscribers.get(t, 0)
+                if n < want:
+                    out.append(f"{node} -> {t} ({n} of {want} subscribers)")
+        return out
+
+    def fingerprint(self) -> Tuple:
+        """Changes whenever a report's counts change (start-up waits for it to hold still)."""
+        return tuple((n, repr(sorted(r.get("sent", {}).items())), repr(sorted(r.get("subs", {}).items())))
+                     for n, r in sorted(self.reports.items()))
+
+    # -------------------------------------------------------------- rounds
+    def watermark(self, own_sent: Dict[str, int], plc_sent: Tuple[int, int]) -> Watermark:
+        wm: Watermark = {}
+        for t, n in own_sent.items():
+            wm.setdefault(t, {})[self.own] = n
+        for node, r in self.reports.items():
+            sent = r.get("sent", {})
+            # every member's publications, those with nothing sent yet too: a member's
+            # subscriber handles a publisher missing here as outside the lockstep (at once)
+            for t in set(sent) | set(r.get("pubs", {})):
+                wm.setdefault(t, {})[node] = int(sent.get(t, 0))
+        wm[STATE_TOPIC] = {PLC: plc_sent[0]}
+        wm[ACK_TOPIC] = {PLC: plc_sent[1]}
+        return wm
+
+    def needing(self, wm: Watermark) -> List[str]:
+        """Members that subscribe to something published beyond what they last handled."""
+        out = []
+        for node in self.members:
+            r = self.reports.get(node, {})
+            told = self.told[node]
+            for t in r.get("subs", {}):
+                if any(n > told.get(t, {}).get(p, 0) for p, n in wm.get(t, {}).items() if p != node):
+                    out.append(node)
+                    break
+        return out
+
+    def timers_due(self, t_ns: int) -> List[str]:
+        return [n for n in self.members
+                if self.reports.get(n, {}).get("next_timer") is not None and self.reports[n]["next_timer"] <= t_ns]
+
+    def sent_round(self, nodes: Iterable[str], wm: Watermark) -> None:
+        for n in nodes:
+            self.told[n] = {t: dict(p) for t, p in wm.items()}
+
+    def link_sent(self) -> Optional[int]:
+        """Frames the PLC client says it sent since arming (None: no client among the members)."""
+        for r in self.reports.values():
+            if "link" in r:
+                return int(r["link"]["sent"])
+        return None
+
+    def active(self) -> Set[str]:
+        return set(self.members)

@@ -1,0 +1,101 @@
+"""The simulator's lockstep decisions (quadrivio_sim.lockstep), ROS-free."""
+
+from quadrivio_description.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC, member_names
+from quadrivio_sim.lockstep import Coordinator
+
+
+def report(node, seq=0, sent=None, subs=None, pubs=None, next_timer=None, **extra):
+    r = {"node": node, "seq": seq, "sent": sent or {}, "subs": subs or {}, "pubs": pubs or {},
+         "next_timer": next_timer, "error": ""}
+    r.update(extra)
+    return r
+
+
+def test_members_are_the_nodes_marked_in_the_parameter_tree():
+    tree = {"lockstep": {"enabled": True}, "follower": {"lockstep": True, "rate": 50.0},
+            "gps": {"nmea_gps": {"lockstep": False}}, "sim": {"imu_adapter": {"lockstep": True}},
+            "vehicle": {"mass": 390.0}}
+    assert member_names(tree) == ["/follower", "/sim/imu_adapter"]
+
+
+def test_a_report_from_a_stranger_or_an_older_round_is_ignored():
+    c = Coordinator(["/a"], "/simulator")
+    assert not c.on_report(report("/intruder", 5))
+    assert c.on_report(report("/a", 5, sent={"/x": 3}))
+    c.on_report(report("/a", 4, sent={"/x": 1}))
+    assert c.reports["/a"]["sent"] == {"/x": 3}
+    assert c.answered(["/a"], 5) == [] and c.answered(["/a"], 6) == ["/a"]
+
+
+def test_the_watermark_names_every_member_publisher_even_before_it_sent_anything():
+    # A subscriber treats a publisher missing from the watermark as outside the lockstep
+    # and hands its messages over at once: a member that has not published yet must be there.
+    c = Coordinator(["/a", "/b"], "/simulator")
+    c.on_report(report("/a", sent={"/x": 2}, pubs={"/x": 1, "/y": 0}))
+    c.on_report(report("/b", pubs={"/z": 1}))
+    wm = c.watermark({"/sim/imu": 7}, (4, 1))
+    assert wm["/x"] == {"/a": 2} and wm["/y"] == {"/a": 0} and wm["/z"] == {"/b": 0}
+    assert wm["/sim/imu"] == {"/simulator": 7}
+    assert wm[STATE_TOPIC] == {PLC: 4} and wm[ACK_TOPIC] == {PLC: 1}
+
+
+def test_a_round_names_only_the_members_with_something_new_or_a_timer_due():
+    c = Coordinator(["/adapter", "/loc", "/idle"], "/simulator")
+    c.on_report(report("/adapter", subs={"/sim/imu": 1}, pubs={"/imu/data": 1}, next_timer=20_000_000))
+    c.on_report(report("/loc", subs={"/imu/data": 1}, next_timer=50_000_000))
+    c.on_report(report("/idle", subs={"/scan": 1}))
+    wm = c.watermark({"/sim/imu": 1}, (0, 0))
+    assert c.needing(wm) == ["/adapter"]
+    c.sent_round(["/adapter"], wm)
+    assert c.needing(wm) == []  # handled: nothing new until someone publishes
+    c.on_report(report("/adapter", seq=1, sent={"/imu/data": 1}, subs={"/sim/imu": 1}, pubs={"/imu/data": 1},
+                       next_timer=20_000_000))
+    assert c.needing(c.watermark({"/sim/imu": 1}, (0, 0))) == ["/loc"]
+    assert c.timers_due(10_000_000) == [] and c.timers_due(20_000_000) == ["/adapter"]
+    assert c.timers_due(50_000_000) == ["/adapter", "/loc"]
+
+
+def test_the_plc_link_needs_the_client_when_frames_were_sent():
+    c = Coordinator(["/plc_client"], "/simulator")
+    c.on_report(report("/plc_client", subs={STATE_TOPIC: 1, ACK_TOPIC: 1}, link={"sent": 3}))
+    assert c.needing(c.watermark({}, (0, 0))) == []
+    assert c.needing(c.watermark({}, (1, 0))) == ["/plc_client"]
+    assert c.link_sent() == 3
+
+
+def test_start_waits_for_every_member_and_every_connection():
+    c = Coordinator(["/adapter", "/loc", "/plc_client"], "/simulator")
+    c.on_report(report("/adapter", subs={"/sim/imu": 0}, pubs={"/imu/data": 1}))
+    c.on_report(report("/loc", subs={"/imu/data": 1}))
+    assert c.missing() == ["/plc_client"]
+    blocked = c.not_connected({"/sim/imu": 1}, plc_session=False)
+    assert blocked == ["/adapter <- /sim/imu (0 of 1 publishers)"]
+    c.on_report(report("/adapter", seq=1, subs={"/sim/imu": 1}, pubs={"/imu/data": 1}))
+    c.on_report(report("/plc_client", subs={STATE_TOPIC: 0, ACK_TOPIC: 0}))
+    assert c.missing() == []
+    assert c.not_connected({"/sim/imu": 1}, plc_session=False) == [
+        f"/plc_client <- {ACK_TOPIC} (0 of 1 publishers)", f"/plc_client <- {STATE_TOPIC} (0 of 1 publishers)"]
+    c.on_report(report("/plc_client", seq=1, subs={STATE_TOPIC: 1, ACK_TOPIC: 1}))
+    assert c.not_connected({"/sim/imu": 1}, plc_session=True) == []
+    # a topic two members publish needs both connections
+    c.on_report(report("/loc", seq=1, subs={"/imu/data": 1}, pubs={"/imu/data": 1}))
+    assert c.not_connected({"/sim/imu": 1}, plc_session=True) == ["/loc <- /imu/data (1 of 2 publishers)"]
+
+
+def test_the_fingerprint_moves_with_the_counts():
+    c = Coordinator(["/a"], "/simulator")
+    c.on_report(report("/a", sent={"/x": 1}))
+    f1 = c.fingerprint()
+    c.on_report(report("/a", seq=1, sent={"/x": 1}))
+    assert c.fingerprint() == f1
+    c.on_report(report("/a", seq=2, sent={"/x": 2}))
+    assert c.fingerprint() != f1
+
+
+def test_start_waits_for_the_publishers_side_of_each_connection_too():
+    # rospy lists a subscriber's connection before the handshake: what the publisher sends
+    # before it has the connection is lost, and the round that waits for it never ends
+    c = Coordinator(["/mag_adapter"], "/simulator")
+    c.on_report(report("/mag_adapter", subs={"/sim/mag": 1}))
+    assert c.not_connected({"/sim/mag": 0}, plc_session=True) == ["/simulator -> /sim/mag (0 of 1 subscribers)"]
+    assert c.not_connected({"/sim/mag": 2}, plc_session=True) == []  # a recorder too: more is fine

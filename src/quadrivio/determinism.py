@@ -1,0 +1,45 @@
+"""Whether two runs are the same, message for message (``rosrun quadrivio compare_runs``).
+
+A run is its streams: per topic and publisher (a topic with several publishers, ``/tf``,
+interleaves them as the scheduler pleases; each publisher's own sequence is what must
+repeat), the serialised messages in order. Topics that carry wall-clock figures
+(``/rosout``, ``/diagnostics``) are left out, and so is ``header.seq``: rospy numbers a
+latched message once per subscriber it reaches, so the field says which subscriber
+connected first, not what the node did. ROS-free: the bag side is in
+:func:`quadrivio.ros.bag.streams`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple
+
+WALL_CLOCK_TOPICS = ("/rosout", "/rosout_agg", "/diagnostics", "/diagnostics_agg", "/diagnostics_toplevel_state")
+
+Streams = Dict[Tuple[str, str], Sequence[bytes]]
+
+
+@dataclass(frozen=True)
+class StreamDiff:
+    topic: str
+    publisher: str
+    count_a: int
+    count_b: int
+    first_difference: Optional[int]  # index of the first message that differs; None: a common prefix
+
+    def describe(self) -> str:
+        where = (f"message {self.first_difference} differs" if self.first_difference is not None
+                 else "one is a prefix of the other")
+        return f"{self.topic} from {self.publisher}: {self.count_a} vs {self.count_b} messages, {where}"
+
+
+def compare(a: Streams, b: Streams) -> Tuple[List[StreamDiff], int]:
+    """(the streams that differ, the number of streams compared)."""
+    diffs = []
+    keys = sorted(set(a) | set(b))
+    for key in keys:
+        x, y = a.get(key, ()), b.get(key, ())
+        first = next((i for i, (p, q) in enumerate(zip(x, y)) if p != q), None)
+        if first is not None or len(x) != len(y):
+            diffs.append(StreamDiff(key[0], key[1], len(x), len(y), first))
+    return diffs, len(keys)

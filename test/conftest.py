@@ -1,0 +1,20 @@
+"""Helpers shared by the system tests."""
+
+import os
+
+
+def short_scenario(folder, base="rtk", name="short_rtk", laps=1, max_duration=30.0) -> str:
+    """Scenario ``base`` cut to ``max_duration`` s of ``laps`` laps of the figure eight,
+    ending on its duration (a run's plumbing, not its figures); returns the YAML's path."""
+    import yaml
+    from quadrivio.scenario import resolve
+
+    with open(resolve(base)) as f:
+        data = yaml.safe_load(f)
+    data["name"] = name
+    data["path"] = {"figure_eight": {"laps": laps}}
+    data["run"] = dict(data.get("run", {}), max_duration=max_duration, end="duration")
+    path = os.path.join(str(folder), f"{name}.yaml")
+    with open(path, "w") as f:
+        yaml.safe_dump(data, f)
+    return path
