@@ -6,9 +6,25 @@ from __future__ import annotations
 from typing import Dict, List
 
 COMMAND, REPORT = "/lockstep/command", "/lockstep/report"
-# Not held back: time itself, the protocol, and topics that are not the loop's data flow.
-EXCLUDED = frozenset(("/clock", COMMAND, REPORT, "/rosout", "/rosout_agg", "/tf", "/tf_static", "/diagnostics",
+
+
+def command_topic(node: str) -> str:
+    """Where member ``node`` (a resolved name) gets its rounds: one topic per member, so
+    that a round wakes only the members it names."""
+    return COMMAND + node
+
+
+# Not held back: time itself, the protocol (every /lockstep/ topic), and topics that are
+# not the loop's data flow.
+EXCLUDED = frozenset(("/clock", "/rosout", "/rosout_agg", "/tf", "/tf_static", "/diagnostics",
                       "/diagnostics_agg", "/diagnostics_toplevel_state"))
+
+
+def excluded(topic: str) -> bool:
+    """Whether lockstep leaves ``topic`` alone (handled at once, not counted)."""
+    return topic in EXCLUDED or topic.startswith("/lockstep/")
+
+
 # The PLC link's pseudo-topics, published by the emulated PLC: STATE frames (handled in the
 # client's rounds) and ACK frames (handled on arrival).
 PLC, STATE_TOPIC, ACK_TOPIC = "plc", "plc/state", "plc/ack"

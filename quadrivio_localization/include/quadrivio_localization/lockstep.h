@@ -2,7 +2,7 @@
 // its docstring for the protocol). When /lockstep/enabled and ~lockstep are true, what the
 // node's subscriptions receive is queued and counted per topic and publisher, its timers do
 // not run on their own, and the simulator's rounds on /lockstep/command decide what is
-// handled when: wait for the round's clock and for every message up to its watermark,
+// handled when (on /lockstep/command<node name>): wait for the round's clock and for every message up to its watermark,
 // handle exactly those (ordered by topic, publisher, arrival), run the due timers, report
 // on /lockstep/report. Otherwise every call here is plain roscpp.
 #pragma once
@@ -47,7 +47,7 @@ public:
     clock_sub_ = nh_.subscribe("/clock", 10, &Lockstep::onClock, this, ros::TransportHints().tcpNoDelay());
     // Rounds block until their messages arrive: they run on a queue and thread of their own.
     ros::SubscribeOptions so = ros::SubscribeOptions::create<std_msgs::String>(
-        "/lockstep/command", 100,
+        "/lockstep/command" + name_, 100,
         boost::function<void(const std_msgs::String::ConstPtr&)>(
             [this](const std_msgs::String::ConstPtr& m) { onCommand(m); }),
         ros::VoidPtr(), &command_queue_);
@@ -158,38 +158,26 @@ private:
           o << (first ? "" : ",") << quote(kv.first) << ":" << kv.second - base_sent_[kv.first];
           first = false;
         }
-      o << "},\"recv\":{";
-      std::map<std::string, std::map<std::string, long>> recv;
-      if (armed_)
-        for (const auto& kv : recv_) recv[kv.first.first][kv.first.second] = kv.second - base_recv_[kv.first];
-      first = true;
-      for (const auto& t : recv)
+      o << "}";
+      if (!armed_ || seq < 0)  // the graph, until armed (the simulator waits for its connections)
       {
-        o << (first ? "" : ",") << quote(t.first) << ":{";
-        bool f2 = true;
-        for (const auto& p : t.second)
+        o << ",\"subs\":{";
+        first = true;
+        for (const auto& s : subs_)
         {
-          o << (f2 ? "" : ",") << quote(p.first) << ":" << p.second;
-          f2 = false;
+          o << (first ? "" : ",") << quote(s.first) << ":" << s.second.getNumPublishers();
+          first = false;
+        }
+        o << "},\"pubs\":{";
+        first = true;
+        for (const auto& p : pubs_)
+        {
+          o << (first ? "" : ",") << quote(p.getTopic()) << ":" << p.getNumSubscribers();
+          first = false;
         }
         o << "}";
-        first = false;
       }
-      o << "},\"subs\":{";
-      first = true;
-      for (const auto& s : subs_)
-      {
-        o << (first ? "" : ",") << quote(s.first) << ":" << s.second.getNumPublishers();
-        first = false;
-      }
-      o << "},\"pubs\":{";
-      first = true;
-      for (const auto& p : pubs_)
-      {
-        o << (first ? "" : ",") << quote(p.getTopic()) << ":" << p.getNumSubscribers();
-        first = false;
-      }
-      o << "},\"next_timer\":";
+      o << ",\"next_timer\":";
       if (timers_.empty())
         o << "null";
       else
@@ -240,14 +228,11 @@ private:
     const long seq = cmd.get<long>("seq", 0);
     if (cmd.get<std::string>("arm", "") == "true")
     {
+      report(-1, "");
       arm();
       report(seq, "");
       return;
     }
-    bool named = false;
-    if (auto to = cmd.get_child_optional("to"))
-      for (const auto& n : *to) named = named || n.second.get_value<std::string>() == name_;
-    if (!named) return;
     std::map<Key, long> wm;
     std::map<std::string, bool> wm_topics;
     if (auto w = cmd.get_child_optional("wm"))

@@ -38,6 +38,10 @@ class Coordinator:
             return False
         old = self.reports.get(node)
         if old is None or r.get("seq", -1) >= old.get("seq", -1):
+            if old is not None:  # after arming a report leaves out the graph: keep the last one
+                for key in ("subs", "pubs"):
+                    if key not in r and key in old:
+                        r = dict(r, **{key: old[key]})
             self.reports[node] = r
         return True
 

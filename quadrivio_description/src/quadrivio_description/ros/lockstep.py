@@ -31,11 +31,12 @@ protocol is on when ``/lockstep/enabled`` is true. Before the first step the sim
 waits until every member reports and is connected to every other member it exchanges
 topics with, then *arms* the members: the counts start from there.
 
-Wire format (``std_msgs/String``, JSON): a command ``{"seq", "t" (ns), "timers",
-"wm": {topic: {publisher: n}}, "to": [node, ...]}`` or ``{"seq", "arm": true}``; a report
-``{"node", "seq", "clock" (ns), "armed", "sent": {topic: n}, "recv": {topic: {publisher:
-n}}, "subs": {topic: publishers connected}, "next_timer" (ns or null), "link": {"sent",
-"handled"} (PLC client only), "error"}``. A member not named in ``to`` ignores the round.
+Wire format (``std_msgs/String``, JSON): a command on ``/lockstep/command<node>`` (one
+topic per member: a round wakes only the members it names) ``{"seq", "t" (ns), "timers",
+"wm": {topic: {publisher: n}}}`` or ``{"seq", "arm": true}``; a report ``{"node", "seq",
+"clock" (ns), "armed", "sent": {topic: n}, "next_timer" (ns or null), "error", "link":
+{"sent"} (the PLC client)}``, plus, until armed, ``"subs": {topic: publishers connected}``
+and ``"pubs": {topic: subscribers connected}``.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 import rospy
 
-from ..lockstep_wire import ACK_TOPIC, COMMAND, EXCLUDED, PLC, REPORT, STATE_TOPIC
+from ..lockstep_wire import ACK_TOPIC, PLC, REPORT, STATE_TOPIC, command_topic, excluded
 
 HELLO_PERIOD = 0.2  # [s wall] reports before arming, so that the simulator sees the member
 WAIT_TIMEOUT = 10.0  # [s wall] a round waits this long for its messages before reporting an error
@@ -95,7 +96,7 @@ class Member:
         with warnings.catch_warnings():  # synchronous on purpose: a report leaves before the next round
             warnings.filterwarnings("ignore", message="The publisher should be created", category=SyntaxWarning)
             self.pub = rospy.Publisher(REPORT, _String(), queue_size=None, tcp_nodelay=True)
-        rospy.Subscriber(COMMAND, _String(), self._on_command, queue_size=None, tcp_nodelay=True)
+        rospy.Subscriber(command_topic(self.name), _String(), self._on_command, queue_size=None, tcp_nodelay=True)
         # A round waits for the clock to reach its time: wake it when /clock moves (rospy's
         # own /clock callback, which sets the time, runs first in the same thread).
         from rosgraph_msgs.msg import Clock
@@ -157,21 +158,20 @@ class Member:
 
     # ----------------------------------------------------------- reports
     def _report(self, seq: int, error: str = "") -> None:
+        # Before arming the report says what the node subscribes and publishes, and how far
+        # each is connected (the simulator waits for the graph); after, only what changes.
         with self.cond:
-            if self.armed:
-                sent = {k: v - self.base_sent.get(k, 0) for k, v in self.sent.items()}
-                recv: Dict[str, Dict[str, int]] = defaultdict(dict)
-                for (topic, pub), n in self.recv.items():
-                    recv[topic][pub] = n - self.base_recv.get((topic, pub), 0)
-            else:
-                sent, recv = {}, {}
+            armed = self.armed
+            sent = {k: v - self.base_sent.get(k, 0) for k, v in self.sent.items()} if armed else {}
             nxt = min((t.next_ns for t in self.timers), default=None)
             subs = {topic: n() for topic, n in self.pseudo.items()}
             link = self.link_sent() - self.link_base if self.pseudo else None
-        for topic, impl in _subscriptions():
-            subs[topic] = len(impl.connections)
-        report = {"node": self.name, "seq": seq, "clock": _now_ns(), "armed": self.armed, "sent": sent,
-                  "recv": recv, "subs": subs, "pubs": _publications(), "next_timer": nxt, "error": error}
+        report = {"node": self.name, "seq": seq, "clock": _now_ns(), "armed": armed, "sent": sent,
+                  "next_timer": nxt, "error": error}
+        if not armed or seq < 0:
+            for topic, impl in _subscriptions():
+                subs[topic] = len(impl.connections)
+            report.update(subs=subs, pubs=_publications())
         if link is not None:
             report["link"] = {"sent": link}
         try:
@@ -193,10 +193,9 @@ class Member:
             rospy.logerr_throttle(5.0, "lockstep: malformed command %r", msg.data[:200])
             return
         if cmd.get("arm"):
+            self._report(-1)  # the graph as it stands when armed (subscriptions, publications)
             self._arm()
             self._report(int(cmd.get("seq", 0)))
-            return
-        if self.name not in cmd.get("to", ()):
             return
         with self.round_lock:
             error = ""
@@ -323,7 +322,7 @@ def _subscriptions():
     tm = get_topic_manager()
     out = []
     for impl in list(getattr(tm, "subs", {}).values()):
-        if impl.resolved_name not in EXCLUDED:
+        if not excluded(impl.resolved_name):
             out.append((impl.resolved_name, impl))
     return out
 
@@ -333,7 +332,7 @@ def _publications() -> Dict[str, int]:
 
     tm = get_topic_manager()
     return {impl.resolved_name: len(impl.connections) for impl in list(getattr(tm, "pubs", {}).values())
-            if impl.resolved_name not in EXCLUDED}
+            if not excluded(impl.resolved_name)}
 
 
 _MEMBER: Optional[Member] = None
@@ -351,12 +350,12 @@ def _patch(counter: Optional[Callable[[str], None]], member: Optional[Member]) -
     sub_orig = _SubscriberImpl.receive_callback
 
     def publish(self, message, connection_override=None):
-        if connection_override is None and counter is not None and self.resolved_name not in EXCLUDED:
+        if connection_override is None and counter is not None and not excluded(self.resolved_name):
             counter(self.resolved_name)
         return pub_orig(self, message, connection_override)
 
     def receive_callback(self, msgs, connection):
-        if member is not None and self.resolved_name not in EXCLUDED:
+        if member is not None and not excluded(self.resolved_name):
             member.received(self, msgs, connection)
         else:
             sub_orig(self, msgs, connection)

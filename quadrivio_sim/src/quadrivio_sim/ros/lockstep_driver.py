@@ -15,7 +15,7 @@ from typing import Callable, Dict, List
 import rospy
 from std_msgs.msg import String
 
-from quadrivio_description.lockstep_wire import COMMAND, REPORT, member_names
+from quadrivio_description.lockstep_wire import REPORT, command_topic, member_names
 from quadrivio_description.ros.lockstep import count_publications
 
 from ..lockstep import Coordinator
@@ -36,15 +36,14 @@ class LockstepDriver:
         self.sent: Dict[str, int] = defaultdict(int)
         self.base_sent: Dict[str, int] = {}
         count_publications(self._count)
-        with warnings.catch_warnings():  # synchronous on purpose: rounds leave in order, at once
-            warnings.filterwarnings("ignore", message="The publisher should be created", category=SyntaxWarning)
-            self.pub = rospy.Publisher(COMMAND, String, queue_size=None, tcp_nodelay=True)
+        self.pubs: Dict[str, rospy.Publisher] = {}  # member -> its command topic
         rospy.Subscriber(REPORT, String, self._on_report, queue_size=None, tcp_nodelay=True)
         self.seq = 0
         self.plc_base = (0, 0, 0)
         self.rounds = 0
         self.steps = 0
         self.left: List[str] = []  # members that stopped answering
+        self.errors = 0  # rounds a member ended without a message it waited for
 
     def _members(self) -> List[str]:
         # From the master itself: rospy.get_param("/") answers from its parameter cache,
@@ -53,6 +52,18 @@ class LockstepDriver:
 
         tree = rosgraph.Master(self.name).getParam("/")
         return [m for m in member_names(tree) if m != self.name]
+
+    def _command_pub(self, node: str) -> rospy.Publisher:
+        if node not in self.pubs:
+            with warnings.catch_warnings():  # synchronous on purpose: rounds leave in order, at once
+                warnings.filterwarnings("ignore", message="The publisher should be created", category=SyntaxWarning)
+                self.pubs[node] = rospy.Publisher(command_topic(node), String, queue_size=None, tcp_nodelay=True)
+        return self.pubs[node]
+
+    def _send(self, nodes: List[str], cmd: dict) -> None:
+        data = String(data=json.dumps(cmd, separators=(",", ":")))
+        for node in nodes:
+            self._command_pub(node).publish(data)
 
     def _count(self, topic: str) -> None:
         with self.cond:
@@ -97,8 +108,11 @@ class LockstepDriver:
                 members = self._members()
                 with self.cond:
                     self.coord.set_members(members)
+                for m in members:
+                    self._command_pub(m)
             with self.cond:
-                missing = self.coord.missing()
+                missing = self.coord.missing() + [f"{m} (rounds)" for m in self.coord.members
+                                                  if self._command_pub(m).get_num_connections() < 1]
                 pubs = _own_publications()
                 blocked = self.coord.not_connected(pubs, self.server.connected)
                 now_fp = self.coord.fingerprint()
@@ -119,7 +133,7 @@ class LockstepDriver:
             self.plc_base = self._plc_counts()
             self.seq += 1
             seq = self.seq
-        self.pub.publish(String(data=json.dumps({"seq": seq, "arm": True})))
+        self._send(self.coord.members, {"seq": seq, "arm": True})
         if not self._wait(self.coord.members, seq):
             return False
         rospy.loginfo("lockstep: armed after %.1f s with %d members: %s", time.monotonic() - t0,
@@ -136,6 +150,7 @@ class LockstepDriver:
             if not pending and (link is None or self._plc_received() >= link):
                 with self.cond:
                     for node, err in self.coord.errors(nodes, seq):
+                        self.errors += 1
                         rospy.logerr("lockstep: %s: %s", node, err)
                 return True
             self._serve(0.0)
@@ -174,8 +189,7 @@ class LockstepDriver:
                 self.seq += 1
                 seq = self.seq
             self.rounds += 1
-            self.pub.publish(String(data=json.dumps({"seq": seq, "t": t_ns, "timers": timers, "wm": wm, "to": to},
-                                                    separators=(",", ":"))))
+            self._send(to, {"seq": seq, "t": t_ns, "timers": timers, "wm": wm})
             self._wait(to, seq)
 
 

@@ -453,6 +453,14 @@ class SimNode:
         stat.add("requested real-time factor", f"{self.rtf:g}")
         stat.add("achieved real-time factor", f"{self.wall_rtf:.2f}")
         stat.add("sim time dropped behind schedule [s]", f"{self.pacer.dropped:.3f} in {self.pacer.drops} stalls")
+        ls = self.lockstep
+        if ls is not None:
+            if ls.left or ls.errors:
+                stat.summary(DiagnosticStatus.WARN, f"lockstep broken: {ls.errors} lost waits, members gone: "
+                                                    f"{' '.join(ls.left) or 'none'} (this run will not repeat exactly)")
+            stat.add("lockstep members", " ".join(ls.coord.members))
+            stat.add("lockstep rounds per step", f"{ls.rounds / max(ls.steps, 1):.2f}")
+            stat.add("lockstep waits that gave up", str(ls.errors))
         return stat
 
     def _diag_plc(self, stat):
