@@ -1,0 +1,130 @@
+"""Where every CPU second of the closed loop goes, per process, at real-time factors 1, 3
+and 5 (issue 11).
+
+The paper's figure eight (scenarios/figure_eight.yaml, its seed) run with ``rosrun
+quadrivio experiment --rtf F``; while it runs, each process of the run (every node by its
+``__name``, the recorder, roslaunch, the master, experiment itself) is sampled from
+/proc every 0.25 s; its CPU time (user + system, all threads) over the run's simulated
+duration is its cost in CPU seconds per simulated second. The achieved factor and the
+tracking come from the run's metrics.json.
+
+Writes bench/results/cpu.json (``cpu_per_sim_s``: factor -> process -> CPU s per sim s;
+``sensors_cpu_per_sim_s_f1``: simulator plus every adapter at factor 1, in the closed loop) and cpu.md (the table).
+"""
+import json
+import os
+import re
+import subprocess
+import sys
+import threading
+import time
+from typing import Dict
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from common import RESULTS, machine, write_result  # noqa: E402
+
+SCENARIO = "figure_eight"
+FACTORS = (1.0, 3.0, 5.0)
+TICK = os.sysconf("SC_CLK_TCK")
+ADAPTERS = ("gps_adapter", "imu_adapter", "mag_adapter", "laser_front", "laser_rear", "camera_left", "camera_right")
+
+
+def _name(args: str) -> str:
+    m = re.search(r"__name:=(\S+)", args)
+    if m:
+        return m.group(1)
+    for key, name in (("rosbag/record", "record"), ("bin/experiment", "experiment"), ("rosmaster", "rosmaster"),
+                      ("roslaunch", "roslaunch"), ("rosout", "rosout")):
+        if key in args:
+            return name
+    return ""
+
+
+def _cpu(pid: str) -> float:
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
+
+
+def sample(stop: threading.Event, seen: Dict[str, tuple]) -> None:
+    """Keep each run process's latest CPU time: pid -> (name, seconds)."""
+    base = os.getpid()
+    while not stop.is_set():
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit() or int(pid) == base:
+                continue
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                    args = fh.read().replace(b"\0", b" ").decode(errors="replace")
+                name = _name(args)
+                if name:
+                    seen[pid] = (name, _cpu(pid))
+            except (OSError, IndexError, ValueError):
+                continue
+        stop.wait(0.25)
+
+
+def run(rtf: float) -> dict:
+    out = os.path.join(RESULTS, f".cpu_rtf{rtf:g}")
+    seen: Dict[str, tuple] = {}
+    stop = threading.Event()
+    th = threading.Thread(target=sample, args=(stop, seen), daemon=True)
+    th.start()
+    t0 = time.monotonic()
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
+                        "--wall-timeout", "400"], capture_output=True, text=True)
+    stop.set()
+    th.join()
+    wall = time.monotonic() - t0
+    try:
+        with open(os.path.join(out, "metrics.json")) as fh:
+            m = json.load(fh)
+    except OSError:
+        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
+        raise SystemExit(f"[bench cpu] the factor-{rtf:g} run wrote no metrics")
+    sim = m["sim_duration_s"]
+    per: Dict[str, float] = {}
+    for name, cpu in seen.values():
+        per[name] = per.get(name, 0.0) + cpu
+    per = {k: v / sim for k, v in sorted(per.items(), key=lambda kv: -kv[1])}
+    print(f"[bench cpu] factor {rtf:g}: achieved {m['rtf']:.2f}, completed {m['completed']}, "
+          f"total {sum(per.values()):.3f} CPU s per sim s; top: " +
+          ", ".join(f"{k} {v:.3f}" for k, v in list(per.items())[:4]), flush=True)
+    return {"per": per, "achieved_rtf": m["rtf"], "completed": bool(m["completed"]), "sim_s": sim, "wall_s": wall,
+            "xte_rmse_m": m.get("xte_rmse_m"), "loc_rmse_m": m.get("loc_rmse_m")}
+
+
+def table(runs: Dict[float, dict]) -> str:
+    names = sorted({n for r in runs.values() for n in r["per"]}, key=lambda n: -runs[FACTORS[0]]["per"].get(n, 0.0))
+    head = "| process | " + " | ".join(f"factor {f:g}" for f in runs) + " |"
+    lines = [head, "|---|" + "---|" * len(runs)]
+    for n in names:
+        lines.append(f"| {n} | " + " | ".join(f"{r['per'].get(n, 0.0):.3f}" for r in runs.values()) + " |")
+    lines.append("| **total** | " + " | ".join(f"**{sum(r['per'].values()):.3f}**" for r in runs.values()) + " |")
+    lines.append("| achieved factor | " + " | ".join(f"{r['achieved_rtf']:.2f}" for r in runs.values()) + " |")
+    lines.append("| completed | " + " | ".join("yes" if r["completed"] else "no" for r in runs.values()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main():
+    runs = {f: run(f) for f in FACTORS}
+    one = runs[FACTORS[0]]["per"]
+    result = {"scenario": f"{SCENARIO} (its seed)", "machine": machine(),
+              "unit": "CPU seconds per simulated second, per process (all its threads)",
+              "cpu_per_sim_s": {f"{f:g}": r["per"] for f, r in runs.items()},
+              "sensors_cpu_per_sim_s_f1": one.get("simulator", 0.0) + sum(one.get(a, 0.0) for a in ADAPTERS)}
+    for f, r in runs.items():
+        for k in ("achieved_rtf", "completed", "xte_rmse_m", "loc_rmse_m", "wall_s"):
+            v = r[k]
+            result[f"f{f:g}_{k}"] = (1.0 if v else 0.0) if isinstance(v, bool) else v
+    write_result("cpu", result)
+    md = os.path.join(RESULTS, "cpu.md")
+    with open(md + ".tmp", "w") as fh:
+        fh.write(table(runs))
+    os.replace(md + ".tmp", md)
+    print(table(runs))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,86 @@
+"""Benchmark of lockstep (``experiment --lockstep``): how fast the closed loop runs when
+the simulator waits for it every tick, and that it repeats.
+
+The paper's figure eight (scenarios/figure_eight.yaml, its seed), the whole stack:
+
+* free-running at real-time factor 1 (the reference: what the stack does live);
+* lockstep as fast as the loop goes (``--rtf 0``), twice: ``lockstep_rtf`` is the factor
+  it achieved (sim time over wall time, from metrics.json), ``lockstep_repeats`` whether
+  the two bags are the same message for message (``compare_runs``);
+* lockstep at factor 1: the same bag again (``lockstep_same_at_rtf1``): what a run does
+  in lockstep does not depend on how fast it went.
+
+Tracking and localization of each run are recorded next to the free-running ones, and
+``stack_rtf`` from bench/results/stack.json when bench_stack ran (free-running, the
+highest factor that still tracks): the two factors side by side.
+
+Writes bench/results/lockstep.json.
+"""
+import json
+import os
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from common import RESULTS, machine, write_result  # noqa: E402
+
+SCENARIO = "figure_eight"
+KEYS = ("completed", "rtf", "sim_duration_s", "xte_rmse_m", "xte_max_m", "loc_rmse_m", "pred_rmse_m")
+
+
+def run(name: str, rtf: float, lockstep: bool) -> dict:
+    out = os.path.join(RESULTS, f".lockstep_{name}")
+    cmd = ["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out, "--wall-timeout", "400"]
+    if lockstep:
+        cmd.append("--lockstep")
+    t0 = time.monotonic()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.monotonic() - t0
+    path = os.path.join(out, "metrics.json")
+    if not os.path.isfile(path):
+        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
+        return {"completed": False, "out": out, "wall_s": wall}
+    with open(path) as fh:
+        m = json.load(fh)
+    m.update(out=out, wall_s=wall)
+    print(f"[bench lockstep] {name}: completed {m['completed']}, achieved factor {m.get('rtf'):.2f}, "
+          f"xte {m.get('xte_rmse_m')}, loc {m.get('loc_rmse_m')} ({wall:.0f} s wall)", flush=True)
+    return m
+
+
+def same(a: dict, b: dict) -> bool:
+    r = subprocess.run(["rosrun", "quadrivio", "compare_runs", os.path.join(a["out"], "run.bag"),
+                        os.path.join(b["out"], "run.bag")], capture_output=True, text=True)
+    print(f"[bench lockstep] {r.stdout.strip()}", flush=True)
+    return r.returncode == 0
+
+
+def main():
+    runs = {"free_f1": run("free_f1", 1.0, False), "lockstep_a": run("lockstep_a", 0.0, True),
+            "lockstep_b": run("lockstep_b", 0.0, True), "lockstep_f1": run("lockstep_f1", 1.0, True)}
+    a, b, f1 = runs["lockstep_a"], runs["lockstep_b"], runs["lockstep_f1"]
+    ok = a.get("completed") and b.get("completed")
+    result = {"scenario": f"{SCENARIO} (its seed)", "machine": machine(),
+              "lockstep_rtf": min(a.get("rtf") or 0.0, b.get("rtf") or 0.0),
+              "lockstep_repeats": 1.0 if ok and same(a, b) else 0.0,
+              "lockstep_same_at_rtf1": 1.0 if ok and f1.get("completed") and same(a, f1) else 0.0}
+    stack = os.path.join(RESULTS, "stack.json")
+    if os.path.isfile(stack):
+        with open(stack) as fh:
+            result["free_stack_rtf"] = json.load(fh).get("stack_rtf")
+    for name, m in runs.items():
+        for k in KEYS + ("wall_s",):
+            v = m.get(k)
+            if isinstance(v, bool):
+                v = 1.0 if v else 0.0
+            if isinstance(v, (int, float)):
+                result[f"{name}_{k}"] = v
+    write_result("lockstep", result)
+    if not result["lockstep_repeats"]:
+        raise SystemExit("[bench lockstep] the two lockstep runs differ")
+
+
+if __name__ == "__main__":
+    main()
