@@ -6,7 +6,9 @@ The paper's figure eight (scenarios/figure_eight.yaml, its seed), the whole stac
 * free-running at real-time factor 1 (the reference: what the stack does live);
 * lockstep as fast as the loop goes (``--rtf 0``), twice: ``lockstep_rtf`` is the factor
   it achieved (sim time over wall time, from metrics.json), ``lockstep_repeats`` whether
-  the two bags are the same message for message (``compare_runs``);
+  the two bags are the same message for message (``compare_runs --prefix``: experiment
+  stops the run when it sees the follower done, on the wall clock, so the runs end a few
+  ticks apart);
 * lockstep at factor 1: the same bag again (``lockstep_same_at_rtf1``): what a run does
   in lockstep does not depend on how fast it went.
 
@@ -51,7 +53,9 @@ def run(name: str, rtf: float, lockstep: bool) -> dict:
 
 
 def same(a: dict, b: dict) -> bool:
-    r = subprocess.run(["rosrun", "quadrivio", "compare_runs", os.path.join(a["out"], "run.bag"),
+    # --prefix: experiment stops a path_done run when it sees the follower done, on the wall
+    # clock: the two runs are cut a few ticks apart
+    r = subprocess.run(["rosrun", "quadrivio", "compare_runs", "--prefix", os.path.join(a["out"], "run.bag"),
                         os.path.join(b["out"], "run.bag")], capture_output=True, text=True)
     print(f"[bench lockstep] {r.stdout.strip()}", flush=True)
     return r.returncode == 0

@@ -24,3 +24,13 @@ def test_differences_are_named_with_the_first_differing_message():
     got = {(d.topic, d.count_a, d.count_b, d.first_difference) for d in diffs}
     assert got == {("/x", 3, 3, 1), ("/y", 1, 2, None), ("/z", 1, 0, None)}
     assert "message 1 differs" in [d for d in diffs if d.topic == "/x"][0].describe()
+
+
+def test_a_run_cut_short_from_outside_is_the_same_with_prefix():
+    a = {("/x", "/p"): [b"1", b"2", b"3"], ("/y", "/p"): [b"1"]}
+    b = {("/x", "/p"): [b"1", b"2"], ("/y", "/p"): [b"1", b"2"]}
+    assert len(compare(a, b)[0]) == 2
+    assert compare(a, b, prefix=True)[0] == []
+    b[("/x", "/p")] = [b"1", b"9"]  # a difference inside the common part is still one
+    assert [d.topic for d in compare(a, b, prefix=True)[0]] == ["/x"]
+    assert [d.topic for d in compare(a, {("/x", "/p"): [b"1", b"2", b"3"]}, prefix=True)[0]] == ["/y"]  # missing

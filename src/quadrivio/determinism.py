@@ -33,13 +33,16 @@ class StreamDiff:
         return f"{self.topic} from {self.publisher}: {self.count_a} vs {self.count_b} messages, {where}"
 
 
-def compare(a: Streams, b: Streams) -> Tuple[List[StreamDiff], int]:
-    """(the streams that differ, the number of streams compared)."""
+def compare(a: Streams, b: Streams, prefix: bool = False) -> Tuple[List[StreamDiff], int]:
+    """(the streams that differ, the number of streams compared). With ``prefix`` a stream
+    that is a prefix of the other's is the same: for runs stopped from outside at
+    different moments (``experiment`` stops a ``path_done`` run when it sees the follower
+    done, on the wall clock), which are the same run cut at different ends."""
     diffs = []
     keys = sorted(set(a) | set(b))
     for key in keys:
         x, y = a.get(key, ()), b.get(key, ())
         first = next((i for i, (p, q) in enumerate(zip(x, y)) if p != q), None)
-        if first is not None or len(x) != len(y):
+        if first is not None or (len(x) != len(y) and not (prefix and min(len(x), len(y)) > 0)):
             diffs.append(StreamDiff(key[0], key[1], len(x), len(y), first))
     return diffs, len(keys)

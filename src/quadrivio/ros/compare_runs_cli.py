@@ -20,6 +20,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("a")
     p.add_argument("b")
     p.add_argument("--skip", action="append", default=[], metavar="TOPIC", help="leave this topic out too")
+    p.add_argument("--prefix", action="store_true",
+                   help="runs stopped from outside at different moments (a path_done run, stopped when experiment "
+                        "sees the follower done): the same if each stream of one is a prefix of the other's")
     args = p.parse_args([a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a])
     skip = set(WALL_CLOCK_TOPICS) | set(args.skip)
     try:
@@ -27,10 +30,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     except BagError as exc:
         print(f"compare_runs: {exc}", file=sys.stderr)
         return 2
-    diffs, n = compare(a, b)
+    diffs, n = compare(a, b, prefix=args.prefix)
     total = sum(len(v) for v in a.values())
     if not diffs:
-        print(f"compare_runs: the same: {n} streams, {total} messages (left out: {', '.join(sorted(skip))})")
+        cut = " up to the shorter run's end" if args.prefix else ""
+        print(f"compare_runs: the same{cut}: {n} streams, {total} messages (left out: {', '.join(sorted(skip))})")
         return 0
     print(f"compare_runs: {len(diffs)} of {n} streams differ:")
     for d in diffs:
