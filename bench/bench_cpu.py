@@ -4,8 +4,9 @@ and 5 (issue 11).
 The paper's figure eight (scenarios/figure_eight.yaml, its seed) run with ``rosrun
 quadrivio experiment --rtf F``; while it runs, each process of the run (every node by its
 ``__name``, the recorder, roslaunch, the master, experiment itself) is sampled from
-/proc every 0.25 s; its CPU time (user + system, all threads) over the run's simulated
-duration is its cost in CPU seconds per simulated second. The achieved factor and the
+/proc every 0.25 s; its CPU time (user + system, all threads) from the moment the run
+starts (experiment's "running": start-up, Python imports, is not the loop's cost) to its
+end, over the run's simulated duration, is its cost in CPU seconds per simulated second. The achieved factor and the
 tracking come from the run's metrics.json.
 
 Writes bench/results/cpu.json (``cpu_per_sim_s``: factor -> process -> CPU s per sim s;
@@ -47,12 +48,15 @@ def _cpu(pid: str) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
 
 
-def sample(stop: threading.Event, seen: Dict[str, tuple]) -> None:
-    """Keep each run process's latest CPU time: pid -> (name, seconds)."""
-    base = os.getpid()
+def sample(stop: threading.Event, seen: Dict[str, tuple], running: threading.Event,
+           base: Dict[str, float]) -> None:
+    """Keep each run process's latest CPU time, ``seen``: pid -> (name, seconds), and in
+    ``base`` each one's CPU time when the run started (start-up is not the loop's cost)."""
+    me = os.getpid()
     while not stop.is_set():
+        snap = running.is_set() and not base
         for pid in os.listdir("/proc"):
-            if not pid.isdigit() or int(pid) == base:
+            if not pid.isdigit() or int(pid) == me:
                 continue
             try:
                 with open(f"/proc/{pid}/cmdline", "rb") as fh:
@@ -60,20 +64,31 @@ def sample(stop: threading.Event, seen: Dict[str, tuple]) -> None:
                 name = _name(args)
                 if name:
                     seen[pid] = (name, _cpu(pid))
+                    if snap:
+                        base[pid] = seen[pid][1]
             except (OSError, IndexError, ValueError):
                 continue
+        if snap and not base:
+            base["-"] = 0.0
         stop.wait(0.25)
 
 
 def run(rtf: float) -> dict:
     out = os.path.join(RESULTS, f".cpu_rtf{rtf:g}")
     seen: Dict[str, tuple] = {}
-    stop = threading.Event()
-    th = threading.Thread(target=sample, args=(stop, seen), daemon=True)
+    base: Dict[str, float] = {}
+    stop, running = threading.Event(), threading.Event()
+    th = threading.Thread(target=sample, args=(stop, seen, running, base), daemon=True)
     th.start()
     t0 = time.monotonic()
-    r = subprocess.run(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
-                        "--wall-timeout", "400"], capture_output=True, text=True)
+    proc = subprocess.Popen(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
+                             "--wall-timeout", "400"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    tail = []
+    for line in proc.stdout:  # "running (logs in ...)": the simulator was just unpaused
+        tail = (tail + [line])[-40:]
+        if "] running" in line:
+            running.set()
+    proc.wait()
     stop.set()
     th.join()
     wall = time.monotonic() - t0
@@ -81,12 +96,12 @@ def run(rtf: float) -> dict:
         with open(os.path.join(out, "metrics.json")) as fh:
             m = json.load(fh)
     except OSError:
-        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
+        print("".join(tail), file=sys.stderr)
         raise SystemExit(f"[bench cpu] the factor-{rtf:g} run wrote no metrics")
     sim = m["sim_duration_s"]
     per: Dict[str, float] = {}
-    for name, cpu in seen.values():
-        per[name] = per.get(name, 0.0) + cpu
+    for pid, (name, cpu) in seen.items():
+        per[name] = per.get(name, 0.0) + cpu - base.get(pid, 0.0)
     per = {k: v / sim for k, v in sorted(per.items(), key=lambda kv: -kv[1])}
     print(f"[bench cpu] factor {rtf:g}: achieved {m['rtf']:.2f}, completed {m['completed']}, "
           f"total {sum(per.values()):.3f} CPU s per sim s; top: " +
