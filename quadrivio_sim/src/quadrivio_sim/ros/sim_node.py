@@ -14,7 +14,9 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   which puts the PLC in AUTO and bypasses the TCP link (tests only).
 * ``~tf_mode`` (str, "ground_truth_frame"): ``map -> <gt_frame>`` TF from ground truth;
   ``base_link`` publishes ``map -> base_link`` (simulator alone, no localization); ``none``.
-* ``~map_frame`` ("map"), ``~base_frame`` ("base_link"), ``~gt_frame`` ("base_link_ground_truth").
+* ``~map_frame`` ("map"), ``~base_frame`` ("base_link"), ``~gt_frame`` ("base_link_ground_truth"),
+  ``~imu_frame`` ("imu_link"), ``~mag_frame`` ("mag_link"): the frames of what it publishes
+  (messages are built by the pure converters of ``converters.py``).
 * ``~start_paused`` (bool, false).
 * ``~script_file`` (str, ""): CSV/YAML of timed setpoints driving the PLC (open-loop runs).
 * ``~run_until`` (float, 0): pause when sim time reaches it (0: never).
@@ -43,7 +45,6 @@ import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticStatus
 from diagnostic_updater import Updater
-from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, Imu, JointState, LaserScan, MagneticField
@@ -59,15 +60,15 @@ from quadrivio_plc import protocol as P
 from quadrivio_sim.msg import RawGps
 from quadrivio_sim.srv import Step, StepResponse
 
+from . import converters as C
+from .clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import Pacer
 from ..plc_emulator import PlcServer
 from ..script import load_script
-from ..simulator import GroundTruth, JointSample, SimParams, Simulator
-from ..world import quat_to_rows, rotate_inverse
-from ..sensors import GpsSample, ImageSample, ImuSample, MagSample, ScanSample
+from ..simulator import SimParams, Simulator
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,11 @@ class NodeParams:
     map_frame: str = param("map")
     base_frame: str = param("base_link")
     gt_frame: str = param("base_link_ground_truth")
+    imu_frame: str = param("imu_link", doc="frame of /sim/imu (the IMU's link in the URDF)")
+    mag_frame: str = param("mag_link", doc="frame of /sim/mag (the magnetometer's link in the URDF)")
     start_paused: bool = param(False)
     script_file: str = param("", doc="CSV/YAML of timed setpoints driving the PLC in AUTO (open-loop runs)")
     run_until: float = param(0.0, lo=0.0, hi=1e7, unit="s", doc="pause when sim time reaches this (0: never)")
-
-
-def _stamp(t: float) -> rospy.Time:
-    return rospy.Time.from_sec(t)
 
 
 class SimNode:
@@ -162,7 +161,10 @@ class SimNode:
                                             queue_size=2) for f in self.pub_image}
         self.baseline = self._stereo_baseline()
         self.tf = tf2_ros.TransformBroadcaster() if self.np.tf_mode != "none" else None
-        self.gt_child = self.np.gt_frame if self.np.tf_mode == "ground_truth_frame" else self.np.base_frame
+        self.frames = C.Frames(map=self.np.map_frame, base=self.np.base_frame,
+                               ground_truth_child=(self.np.gt_frame if self.np.tf_mode == "ground_truth_frame"
+                                                   else self.np.base_frame),
+                               imu=self.np.imu_frame, mag=self.np.mag_frame)
 
         rospy.Service("~pause", Trigger, lambda _: self._set_paused(True))
         rospy.Service("~unpause", Trigger, lambda _: self._set_paused(False))
@@ -329,95 +331,34 @@ class SimNode:
                 self.lockstep.settle(self.sim.t)
 
     def _publish_clock(self) -> None:
-        stamp = _stamp(self.sim.t)
+        stamp = C.stamp(self.sim.t)
         set_own_time(stamp)
         self.pub_clock.publish(Clock(clock=stamp))
 
     # ------------------------------------------------------------ publishing
     def _publish(self, name: str, s) -> None:
+        f = self.frames
         if name == "plc_state":
             self.server.send_state(s)
         elif name == "ground_truth":
-            self._pub_ground_truth(s)
+            odom, tf = C.ground_truth(s, f)
+            self.pub_gt.publish(odom)
+            if self.tf is not None:
+                self.tf.sendTransform(tf)
         elif name == "imu":
-            self._pub_imu(s)
+            self.pub_imu.publish(C.imu(s, f))
         elif name == "gps":
-            self._pub_gps(s)
+            self.pub_gps.publish(C.gps(s, f))
         elif name == "mag":
-            self._pub_mag(s)
+            self.pub_mag.publish(C.mag(s, f))
         elif name == "scan":
-            self._pub_scan(s)
+            self.pub_scan[s.frame].publish(C.scan(s))
         elif name == "joint_states":
-            self._pub_joints(s)
+            self.pub_joints.publish(C.joints(s))
         elif name == "image":
-            self._pub_image(s)
-
-    def _pub_ground_truth(self, s: GroundTruth) -> None:
-        m = Odometry()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = self.np.map_frame
-        m.child_frame_id = self.np.base_frame
-        p, q = m.pose.pose.position, m.pose.pose.orientation
-        p.x, p.y, p.z = s.position
-        q.x, q.y, q.z, q.w = s.orientation
-        # Odometry twist is expressed in the child frame (base_link).
-        R = quat_to_rows(s.orientation)
-        v = rotate_inverse(R, s.linear_velocity)
-        w = rotate_inverse(R, s.angular_velocity)
-        tw = m.twist.twist
-        tw.linear.x, tw.linear.y, tw.linear.z = v
-        tw.angular.x, tw.angular.y, tw.angular.z = w
-        self.pub_gt.publish(m)
-        if self.tf is not None:
-            t = TransformStamped()
-            t.header = m.header
-            t.child_frame_id = self.gt_child
-            t.transform.translation.x, t.transform.translation.y, t.transform.translation.z = s.position
-            t.transform.rotation = m.pose.pose.orientation
-            self.tf.sendTransform(t)
-
-    def _pub_imu(self, s: ImuSample) -> None:
-        m = Imu()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = "imu_link"
-        m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w = s.orientation
-        m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z = s.angular_rate
-        a = m.linear_acceleration
-        a.x, a.y, a.z = s.specific_force
-        self.pub_imu.publish(m)
-
-    def _pub_gps(self, s: GpsSample) -> None:
-        m = RawGps()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = self.np.map_frame
-        m.position.x, m.position.y, m.position.z = s.position
-        m.velocity.x, m.velocity.y, m.velocity.z = s.velocity
-        self.pub_gps.publish(m)
-
-    def _pub_mag(self, s: MagSample) -> None:
-        m = MagneticField()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = "mag_link"
-        m.magnetic_field.x, m.magnetic_field.y, m.magnetic_field.z = s.field
-        self.pub_mag.publish(m)
-
-    def _pub_scan(self, s: ScanSample) -> None:
-        m = LaserScan()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = s.frame
-        m.angle_min = s.angle_min
-        m.angle_increment = s.angle_increment
-        m.angle_max = s.angle_min + s.angle_increment * (len(s.ranges) - 1)
-        m.scan_time = s.scan_time
-        m.range_min, m.range_max = s.range_min, s.range_max
-        m.ranges = s.ranges
-        self.pub_scan[s.frame].publish(m)
-
-    def _pub_joints(self, s: JointSample) -> None:
-        m = JointState()
-        m.header.stamp = _stamp(s.stamp)
-        m.name, m.position, m.velocity = list(s.names), list(s.positions), list(s.velocities)
-        self.pub_joints.publish(m)
+            img, info = C.image(s, self.baseline, s.frame == self.sim_params.sensors.cameras.frames[-1])
+            self.pub_image[s.frame].publish(img)
+            self.pub_info[s.frame].publish(info)
 
     def _stereo_baseline(self) -> float:
         frames = self.sim_params.sensors.cameras.frames
@@ -425,24 +366,6 @@ class SimNode:
             return 0.0
         (a, _), (b, _) = (self.sim.world.frames[f] for f in frames)
         return float(sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5)
-
-    def _pub_image(self, s: ImageSample) -> None:
-        m = Image()
-        m.header.stamp = _stamp(s.stamp)
-        m.header.frame_id = s.frame
-        m.height, m.width, m.encoding, m.step = s.height, s.width, "rgb8", 3 * s.width
-        m.data = s.rgb
-        self.pub_image[s.frame].publish(m)
-        info = CameraInfo()
-        info.header = m.header
-        info.height, info.width, info.distortion_model = s.height, s.width, "plumb_bob"
-        info.D = [0.0] * 5
-        info.K = [s.fx, 0.0, s.cx, 0.0, s.fy, s.cy, 0.0, 0.0, 1.0]
-        info.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-        # The second camera of the pair is the right one: Tx = -fx * baseline (REP-104).
-        tx = -s.fx * self.baseline if s.frame == self.sim_params.sensors.cameras.frames[-1] else 0.0
-        info.P = [s.fx, 0.0, s.cx, tx, 0.0, s.fy, s.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
-        self.pub_info[s.frame].publish(info)
 
     # ----------------------------------------------------------- diagnostics
     def _diag_sim(self, stat):
@@ -481,26 +404,6 @@ class SimNode:
         stat.add("watchdog trips", str(plc.watchdog_trips))
         stat.add("link losses", str(plc.link_losses))
         return stat
-
-
-def take_clock_ownership() -> None:
-    """The simulator is /clock's source: stop rospy from subscribing to it in this process.
-
-    With /use_sim_time, rospy subscribes every node to /clock; here that would send each
-    tick back to its own publisher over TCP (a third of the node's CPU time at 100 Hz).
-    Instead :func:`set_own_time` sets this process's ROS time directly at each tick, as
-    Gazebo does with ros::Time::setNow.
-    """
-    from rospy.impl import simtime
-
-    sub = getattr(simtime, "_clock_sub", None)
-    if sub is not None:
-        sub.unregister()
-        simtime._clock_sub = None
-
-
-def set_own_time(stamp: rospy.Time) -> None:
-    rospy.rostime._set_rostime(stamp)
 
 
 def main() -> None:
