@@ -4,7 +4,8 @@
 // now, to cover the control loop's own delay), ~max_age (s, 1.0: stop predicting from an
 // estimate older than this), ~max_future (s, 0.5: inputs stamped further ahead of the
 // clock are dropped, and so is an estimate newer than that: after the clock moved back),
-// ~map_frame (map), ~base_frame (base_link). When ROS time moves back (the simulator's
+// ~map_frame (map), ~base_frame (base_link), ~realtime_priority (0: on the wall clock the 50 Hz beat
+// runs on a thread of its own; above 0 at that SCHED_FIFO priority, when the system allows it). When ROS time moves back (the simulator's
 // ~reset, a bag loop) the predictor forgets its estimate, readings and calibration.
 // Vehicle geometry: /vehicle/wheelbase, /vehicle/steering/ratio.
 // Subscribes: localization/odom (nav_msgs/Odometry), vehicle/state
@@ -17,10 +18,17 @@
 #include <quadrivio_localization/predictor.h>
 #include <quadrivio_plc/VehicleState.h>
 
+#include <pthread.h>
+#include <sched.h>
+
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <cstring>
 #include <memory>
 #include <string>
 #include <mutex>
+#include <thread>
 
 namespace ql = quadrivio_localization;
 
@@ -55,11 +63,13 @@ public:
     pnh_.param("max_future", max_future_, 0.5);
     pnh_.param<std::string>("map_frame", map_frame_, "map");
     pnh_.param<std::string>("base_frame", base_frame_, "base_link");
+    pnh_.param("realtime_priority", realtime_priority_, 0);
     if (!(rate_ > 0.0 && rate_ <= 1000.0) || !(horizon_ >= 0.0 && horizon_ <= 2.0) || !(max_age_ > 0.0) ||
-        !(max_future_ >= 0.0 && max_future_ <= 60.0))
+        !(max_future_ >= 0.0 && max_future_ <= 60.0) || realtime_priority_ < 0 || realtime_priority_ > 99)
     {
       ROS_FATAL("predictor: bad parameter: ~rate = %g (0, 1000] Hz, ~horizon = %g [0, 2] s, ~max_age = %g > 0 s, "
-                "~max_future = %g [0, 60] s", rate_, horizon_, max_age_, max_future_);
+                "~max_future = %g [0, 60] s, ~realtime_priority = %d [0, 99]", rate_, horizon_, max_age_, max_future_,
+                realtime_priority_);
       ros::shutdown();
       return;
     }
@@ -72,11 +82,52 @@ public:
     sub_odom_ = lockstep_.subscribe("localization/odom", 10, &PredictorNode::onOdom, this);
     sub_state_ = lockstep_.subscribe("vehicle/state", 100, &PredictorNode::onState, this);
     sub_cal_ = lockstep_.subscribe("localization/calibration", 2, &PredictorNode::onCalibration, this);
-    lockstep_.addTimer(1.0 / rate_, [this]() { onTimer(); });
-    ROS_INFO("predictor: %g Hz, horizon %g s, wheelbase %g m", rate_, horizon_, wheelbase);
+    if (ros::Time::isSimTime() || lockstep_.enabled())
+      lockstep_.addTimer(1.0 / rate_, [this]() { onTimer(); });  // on the simulator's clock
+    else
+      beat_ = std::thread(&PredictorNode::beat, this);
+    ROS_INFO("predictor: %g Hz, horizon %g s, wheelbase %g m%s", rate_, horizon_, wheelbase,
+             beat_.joinable() ? ", on a thread of its own (wall clock)" : "");
+  }
+
+  ~PredictorNode()
+  {
+    stop_ = true;
+    if (beat_.joinable()) beat_.join();
   }
 
 private:
+  // On the wall clock (the vehicle) the 50 Hz beat has a thread of its own that sleeps to
+  // absolute deadlines and publishes itself: a roscpp timer wakes the timer manager's
+  // thread, which queues the callback for the spinner's thread, two wake-ups per period
+  // that a loaded machine delays. ~realtime_priority > 0 asks for SCHED_FIFO at that
+  // priority (needs root or an rtprio limit; without, it says so and runs as it is).
+  void beat()
+  {
+    if (realtime_priority_ > 0)
+    {
+      sched_param sp{};
+      sp.sched_priority = realtime_priority_;
+      const int err = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp);
+      if (err != 0)
+        ROS_WARN("predictor: no real-time priority %d for the 50 Hz beat (%s): running at normal priority "
+                 "(allow it with an rtprio limit in /etc/security/limits.conf)", realtime_priority_, std::strerror(err));
+      else
+        ROS_INFO("predictor: the 50 Hz beat runs at real-time priority %d (SCHED_FIFO)", realtime_priority_);
+    }
+    const auto period = std::chrono::nanoseconds(static_cast<int64_t>(1e9 / rate_));
+    auto next = std::chrono::steady_clock::now() + period;
+    while (!stop_ && ros::ok())
+    {
+      std::this_thread::sleep_until(next);
+      onTimer();
+      next += period;
+      const auto now = std::chrono::steady_clock::now();
+      if (now > next + 5 * period) next = now + period;  // a long stall: start over, no burst
+    }
+  }
+
+
   // A stamp further ahead of the clock than ~max_future comes from a broken clock or
   // from before the clock moved back: never let it become the predictor's "now".
   bool fromFuture(const ros::Time& stamp, const char* what)
@@ -181,6 +232,9 @@ private:
   ros::Publisher pub_;
   ros::Subscriber sub_odom_, sub_state_, sub_cal_;
   ql::Lockstep lockstep_;
+  int realtime_priority_ = 0;
+  std::atomic<bool> stop_{ false };
+  std::thread beat_;
   std::unique_ptr<ql::Predictor> core_;
   std::mutex mutex_;
   double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, max_future_ = 0.5, z_ = 0.0;
