@@ -22,31 +22,20 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, machine, write_result  # noqa: E402
+from common import RESULTS, experiment, machine, write_result  # noqa: E402
 
 SCENARIO = "figure_eight"
 KEYS = ("completed", "rtf", "sim_duration_s", "xte_rmse_m", "xte_max_m", "loc_rmse_m", "pred_rmse_m")
 
 
 def run(name: str, rtf: float, lockstep: bool) -> dict:
-    out = os.path.join(RESULTS, f".lockstep_{name}")
-    cmd = ["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out, "--wall-timeout", "400"]
-    if lockstep:
-        cmd.append("--lockstep")
-    t0 = time.monotonic()
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.monotonic() - t0
-    path = os.path.join(out, "metrics.json")
-    if not os.path.isfile(path):
-        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
-        return {"completed": False, "out": out, "wall_s": wall}
-    with open(path) as fh:
-        m = json.load(fh)
-    m.update(out=out, wall_s=wall)
+    m = experiment(SCENARIO, os.path.join(RESULTS, f".lockstep_{name}"), rtf, *(["--lockstep"] if lockstep else []))
+    if "rtf" not in m:
+        return m
+    wall = m["wall_s"]
     print(f"[bench lockstep] {name}: completed {m['completed']}, achieved factor {m.get('rtf'):.2f}, "
           f"xte {m.get('xte_rmse_m')}, loc {m.get('loc_rmse_m')} ({wall:.0f} s wall)", flush=True)
     return m

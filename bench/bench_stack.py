@@ -14,9 +14,7 @@ the bag's duration: the share of one core the smoother needs at 20 Hz in real ti
 
 Writes bench/results/stack.json and bench/results/smoother.json.
 """
-import json
 import os
-import subprocess
 import sys
 import time
 
@@ -24,7 +22,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, machine, write_result  # noqa: E402
+from common import RESULTS, experiment, machine, write_result  # noqa: E402
 
 FACTORS = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
 KEYS = ("xte_rmse_m", "xte_max_m")
@@ -32,19 +30,7 @@ SCENARIO = "figure_eight"
 
 
 def run(rtf: float) -> dict:
-    out = os.path.join(RESULTS, f".stack_rtf{rtf:g}")
-    t0 = time.monotonic()
-    r = subprocess.run(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
-                        "--wall-timeout", "400"], capture_output=True, text=True)
-    wall = time.monotonic() - t0
-    path = os.path.join(out, "metrics.json")
-    if not os.path.isfile(path):
-        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
-        return {"completed": False, "out": out, "wall_s": wall}
-    with open(path) as fh:
-        m = json.load(fh)
-    m.update(out=out, wall_s=wall)
-    return m
+    return experiment(SCENARIO, os.path.join(RESULTS, f".stack_rtf{rtf:g}"), rtf)
 
 
 def stack_rtf() -> dict:

@@ -133,3 +133,22 @@ def wait_for(predicate, timeout, what):
         if time.monotonic() > deadline:
             raise RuntimeError(f"timed out waiting for {what}")
         time.sleep(0.05)
+
+
+def experiment(scenario: str, out: str, rtf: float, *extra: str) -> dict:
+    """``rosrun quadrivio experiment SCENARIO --rtf RTF --out OUT [extra]``: its metrics.json
+    plus ``out`` and ``wall_s``; ``{"completed": False, ...}`` when it wrote none."""
+    import sys
+
+    t0 = time.monotonic()
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", scenario, "--rtf", str(rtf), "--out", out,
+                        "--wall-timeout", "400", *extra], capture_output=True, text=True)
+    wall = time.monotonic() - t0
+    path = os.path.join(out, "metrics.json")
+    if not os.path.isfile(path):
+        print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
+        return {"completed": False, "out": out, "wall_s": wall}
+    with open(path) as fh:
+        m = json.load(fh)
+    m.update(out=out, wall_s=wall)
+    return m
