@@ -99,3 +99,17 @@ def test_start_waits_for_the_publishers_side_of_each_connection_too():
     c.on_report(report("/mag_adapter", subs={"/sim/mag": 1}))
     assert c.not_connected({"/sim/mag": 0}, plc_session=True) == ["/simulator -> /sim/mag (0 of 1 subscribers)"]
     assert c.not_connected({"/sim/mag": 2}, plc_session=True) == []  # a recorder too: more is fine
+
+
+def test_a_python_publisher_must_name_every_member_subscriber_and_the_clock_reach_every_member():
+    # A recorder's connection must not stand in for a member's; and a member whose /clock
+    # connection is not there yet would miss the first ticks and wait for a time that
+    # never comes
+    c = Coordinator(["/imu", "/loc", "/rollover"], "/simulator")
+    c.on_report(report("/imu", pubs={"/imu/data": ["/loc", "/record_1"]}))
+    c.on_report(report("/loc", subs={"/imu/data": 1}))
+    c.on_report(report("/rollover", subs={"/imu/data": 1}))
+    assert c.not_connected({"/clock": ["/imu", "/loc", "/record_1"]}, plc_session=True) == [
+        "/simulator -> /clock (not yet to /rollover)", "/imu -> /imu/data (not yet to /rollover)"]
+    c.on_report(report("/imu", seq=1, pubs={"/imu/data": ["/loc", "/record_1", "/rollover"]}))
+    assert c.not_connected({"/clock": ["/imu", "/loc", "/rollover"]}, plc_session=True) == []

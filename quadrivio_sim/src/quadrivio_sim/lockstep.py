@@ -57,7 +57,7 @@ class Coordinator:
     def missing(self) -> List[str]:
         return [m for m in self.members if m not in self.reports]
 
-    def not_connected(self, own_pubs: Dict[str, int], plc_session: bool) -> List[str]:
+    def not_connected(self, own_pubs: Dict[str, object], plc_session: bool) -> List[str]:
         """What keeps the graph from starting: ``"<subscriber> <- <topic> (k of n
         publishers)"`` for each member subscription that is not yet connected to every
         member publishing it (and to the simulator when it publishes it)."""
@@ -67,14 +67,12 @@ class Coordinator:
                 publishers[t] = publishers.get(t, 0) + 1
         if plc_session:
             publishers[STATE_TOPIC] = publishers[ACK_TOPIC] = 1
-        subscribers: Dict[str, int] = {}
         out = []
         for node in self.members:
             r = self.reports.get(node)
             if r is None:
                 continue
             for t, n in sorted(r.get("subs", {}).items()):
-                subscribers[t] = subscribers.get(t, 0) + 1
                 want = publishers.get(t, 0)
                 if t in (STATE_TOPIC, ACK_TOPIC) and not plc_session:
                     want = 1
@@ -82,12 +80,23 @@ class Coordinator:
                     out.append(f"{node} <- {t} ({n} of {want} publishers)")
         # The publisher's side too: a subscriber lists a connection before its handshake is
         # done, and what is published before the publisher has it is lost to that subscriber.
+        # A Python publisher names its subscribers (every member of the topic must be there),
+        # a C++ one only counts them.
+        members_of: Dict[str, List[str]] = {}
+        for node in self.members:
+            for t in self.reports.get(node, {}).get("subs", {}):
+                members_of.setdefault(t, []).append(node)
+        members_of["/clock"] = [n for n in self.members if n in self.reports]  # every member's time
         for node, pubs in [(self.own, own_pubs)] + [(n, self.reports[n].get("pubs", {}))
                                                       for n in self.members if n in self.reports]:
-            for t, n in sorted(pubs.items()):
-                want = subscribers.get(t, 0)
-                if n < want:
-                    out.append(f"{node} -> {t} ({n} of {want} subscribers)")
+            for t, have in sorted(pubs.items()):
+                want = [m for m in members_of.get(t, []) if m != node]
+                if isinstance(have, list):
+                    lacking = [m for m in want if m not in have]
+                    if lacking:
+                        out.append(f"{node} -> {t} (not yet to {' '.join(lacking)})")
+                elif have < len(want):
+                    out.append(f"{node} -> {t} ({have} of {len(want)} subscribers)")
         return out
 
     def fingerprint(self) -> Tuple:

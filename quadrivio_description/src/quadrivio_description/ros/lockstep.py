@@ -327,12 +327,16 @@ def _subscriptions():
     return out
 
 
-def _publications() -> Dict[str, int]:
+def _publications(clock: bool = False) -> Dict[str, List[str]]:
+    """Per topic this process publishes, the subscribers its publisher has a connection to
+    (their caller ids: the publisher adds a connection once the handshake is done);
+    ``clock``: /clock too."""
     from rospy.impl.registration import get_topic_manager
 
     tm = get_topic_manager()
-    return {impl.resolved_name: len(impl.connections) for impl in list(getattr(tm, "pubs", {}).values())
-            if not excluded(impl.resolved_name)}
+    return {impl.resolved_name: sorted(str(getattr(c, "endpoint_id", "?")) for c in list(impl.connections))
+            for impl in list(getattr(tm, "pubs", {}).values())
+            if not excluded(impl.resolved_name) or (clock and impl.resolved_name == "/clock")}
 
 
 _MEMBER: Optional[Member] = None

@@ -196,4 +196,4 @@ class LockstepDriver:
 def _own_publications() -> Dict[str, int]:
     from quadrivio_description.ros.lockstep import _publications
 
-    return _publications()
+    return _publications(clock=True)
