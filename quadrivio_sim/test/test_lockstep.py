@@ -24,7 +24,7 @@ def test_a_report_from_a_stranger_or_an_older_round_is_ignored():
     assert c.on_report(report("/a", 5, sent={"/x": 3}))
     c.on_report(report("/a", 4, sent={"/x": 1}))
     assert c.reports["/a"]["sent"] == {"/x": 3}
-    assert c.answered(["/a"], 5) == [] and c.answered(["/a"], 6) == ["/a"]
+    assert c.pending(["/a"], 5) == [] and c.pending(["/a"], 6) == ["/a"]
 
 
 def test_the_watermark_names_every_member_publisher_even_before_it_sent_anything():

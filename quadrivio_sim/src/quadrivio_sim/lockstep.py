@@ -10,7 +10,7 @@ report's ``link.sent`` and must have reached the emulated PLC before the loop go
 
 from __future__ import annotations
 
-from typing import Dict, Iterable, List, Optional, Set, Tuple
+from typing import Dict, Iterable, List, Optional, Tuple
 
 from quadrivio_description.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC
 
@@ -45,7 +45,7 @@ class Coordinator:
             self.reports[node] = r
         return True
 
-    def answered(self, nodes: Iterable[str], seq: int) -> List[str]:
+    def pending(self, nodes: Iterable[str], seq: int) -> List[str]:
         """The nodes among ``nodes`` that have not answered round ``seq`` yet."""
         return [n for n in nodes if self.reports.get(n, {}).get("seq", -2) < seq]
 
@@ -145,6 +145,3 @@ class Coordinator:
             if "link" in r:
                 return int(r["link"]["sent"])
         return None
-
-    def active(self) -> Set[str]:
-        return set(self.members)

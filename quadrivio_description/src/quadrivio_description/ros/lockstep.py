@@ -171,7 +171,7 @@ class Member:
         if not armed or seq < 0:
             for topic, impl in _subscriptions():
                 subs[topic] = len(impl.connections)
-            report.update(subs=subs, pubs=_publications())
+            report.update(subs=subs, pubs=publications())
         if link is not None:
             report["link"] = {"sent": link}
         try:
@@ -226,10 +226,10 @@ class Member:
                 out.append(q.popleft())
         return out
 
-    def _owed(self, wm: Dict[str, Dict[str, int]]) -> List[Tuple[Tuple[str, str], int]]:
-        """(key, how many more must arrive) for the watermark's messages on our subscriptions."""
+    def _owed(self, wm: Dict[str, Dict[str, int]], mine) -> List[Tuple[Tuple[str, str], int]]:
+        """(key, how many more must arrive) for the watermark's messages on our
+        subscriptions ``mine``."""
         short = []
-        mine = set(self.pseudo) | {t for t, _ in _subscriptions()}
         for topic, pubs in wm.items():
             if topic not in mine:
                 continue
@@ -247,9 +247,10 @@ class Member:
         self.last_t = t_ns
         deadline = _wall() + WAIT_TIMEOUT
         error = ""
+        mine = set(self.pseudo) | {t for t, _ in _subscriptions()}  # once per round, not per wake-up
         with self.cond:
             while True:
-                owed = self._owed(wm)
+                owed = self._owed(wm, mine)
                 late_clock = _now_ns() < t_ns
                 if not owed and not late_clock:
                     break
@@ -327,7 +328,7 @@ def _subscriptions():
     return out
 
 
-def _publications(clock: bool = False) -> Dict[str, List[str]]:
+def publications(clock: bool = False) -> Dict[str, List[str]]:
     """Per topic this process publishes, the subscribers its publisher has a connection to
     (their caller ids: the publisher adds a connection once the handshake is done);
     ``clock``: /clock too."""

@@ -16,7 +16,7 @@ import rospy
 from std_msgs.msg import String
 
 from quadrivio_description.lockstep_wire import REPORT, command_topic, member_names
-from quadrivio_description.ros.lockstep import count_publications
+from quadrivio_description.ros.lockstep import count_publications, publications
 
 from ..lockstep import Coordinator
 from ..plc_emulator import PlcServer
@@ -113,7 +113,7 @@ class LockstepDriver:
             with self.cond:
                 missing = self.coord.missing() + [f"{m} (rounds)" for m in self.coord.members
                                                   if self._command_pub(m).get_num_connections() < 1]
-                pubs = _own_publications()
+                pubs = publications(clock=True)
                 blocked = self.coord.not_connected(pubs, self.server.connected)
                 now_fp = self.coord.fingerprint()
             if now_fp != fp:
@@ -145,7 +145,7 @@ class LockstepDriver:
         t0 = last_warn = time.monotonic()
         while not self.stop():
             with self.cond:
-                pending = self.coord.answered(nodes, seq)
+                pending = self.coord.pending(nodes, seq)
                 link = self.coord.link_sent()
             if not pending and (link is None or self._plc_received() >= link):
                 with self.cond:
@@ -192,8 +192,3 @@ class LockstepDriver:
             self._send(to, {"seq": seq, "t": t_ns, "timers": timers, "wm": wm})
             self._wait(to, seq)
 
-
-def _own_publications() -> Dict[str, int]:
-    from quadrivio_description.ros.lockstep import _publications
-
-    return _publications(clock=True)
