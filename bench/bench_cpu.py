@@ -28,7 +28,7 @@ from common import RESULTS, machine, write_result  # noqa: E402
 SCENARIO = "figure_eight"
 FACTORS = (1.0, 3.0, 5.0)
 TICK = os.sysconf("SC_CLK_TCK")
-ADAPTERS = ("gps_adapter", "imu_adapter", "mag_adapter", "laser_front", "laser_rear", "camera_left", "camera_right")
+ADAPTERS = ("sensor_adapters", "gps_adapter", "imu_adapter", "mag_adapter", "laser_front", "laser_rear", "camera_left", "camera_right")
 
 
 def _name(args: str) -> str:

@@ -113,8 +113,8 @@ def test_the_stand_in_and_real_launch_share_no_node():
     d = rospkg.RosPack().get_path("quadrivio") + "/launch/"
     stand_in = roslaunch.config.load_config_default([(d + "sim.launch", ["hardware:=true"])], None, verbose=False)
     names = {n.namespace + n.name for n in stand_in.nodes}
-    assert names == {"/simulator", "/gps_adapter", "/imu_adapter", "/mag_adapter", "/laser_front", "/laser_rear"}
-    assert stand_in.params["/gps_adapter/publish_fix"].value is False  # NMEA only: the real driver publishes
+    assert names == {"/simulator", "/sensor_adapters"}
+    assert stand_in.params["/sensor_adapters/gps_adapter/publish_fix"].value is False  # NMEA only: the driver publishes
     real = roslaunch.config.load_config_default(
         [(d + "real.launch", ["use_sim_time:=true", "plc_host:=127.0.0.1", "gps_device:=/tmp/x"])], None, verbose=False)
     assert not names & {n.namespace + n.name for n in real.nodes}

@@ -23,7 +23,6 @@ from __future__ import annotations
 import heapq
 import math
 import time
-import zlib
 from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Tuple
 
@@ -34,14 +33,9 @@ from quadrivio_description.config import ConfigError, load_yaml, replace_nested
 from .scenario import Scenario, _defaults, _section
 from .scenario import vehicle as scenario_vehicle
 
-# Node names of the adapters in the launch files: their generators' stream ids.
+# The adapters' names in the launch files: their generators' stream ids.
 GPS_NODE, IMU_NODE, MAG_NODE = "/gps_adapter", "/imu_adapter", "/mag_adapter"
 SETTLE = 20.0  # [s] error statistics start here (the smoother's start-up and first calibration)
-
-
-def node_rng(seed: int, node: str) -> np.random.Generator:
-    """The generator an adapter node gets for ``seed`` (quadrivio_sim.ros.adapters.node_rng)."""
-    return np.random.default_rng([seed, zlib.crc32(node.encode())])
 
 
 @dataclass
@@ -159,7 +153,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     from quadrivio_plc import protocol as P
     from quadrivio_sim.actuators import load_actuators
     from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams, MagAdapterParams
-    from quadrivio_sim.noise import GpsNoise, ImuNoise, Latency, MagNoise
+    from quadrivio_sim.noise import GpsNoise, ImuNoise, Latency, MagNoise, adapter_rng
     from quadrivio_sim.paths import package_file
     from quadrivio_sim.simulator import Simulator
     from quadrivio_sim.world import quat_to_rpy
@@ -175,7 +169,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     gp = sensor_params(s, "gps", GpsAdapterParams, "gps.yaml")
     ip = sensor_params(s, "imu", ImuAdapterParams, "imu.yaml")
     mp = sensor_params(s, "mag", MagAdapterParams, "mag.yaml")
-    rng_g, rng_i, rng_m = node_rng(seed, GPS_NODE), node_rng(seed, IMU_NODE), node_rng(seed, MAG_NODE)
+    rng_g, rng_i, rng_m = adapter_rng(seed, GPS_NODE), adapter_rng(seed, IMU_NODE), adapter_rng(seed, MAG_NODE)
     gps, gps_lat = GpsNoise(gp.noise, rng_g), Latency(gp.latency, rng_g)
     imu, imu_lat = ImuNoise(ip.noise, rng_i, 1.0 / ip.rate), Latency(ip.latency, rng_i)
     mag, mag_lat = MagNoise(mp.noise, rng_m), Latency(mp.latency, rng_m)

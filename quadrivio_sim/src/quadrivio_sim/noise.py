@@ -27,6 +27,7 @@ order the samples arrive, so one seed gives one run. Models:
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple
 
@@ -35,6 +36,13 @@ import numpy as np
 from quadrivio_description.config import param
 
 # ---------------------------------------------------------------- processes
+
+
+def adapter_rng(seed: int, name: str) -> np.random.Generator:
+    """A sensor adapter's generator: the run's seed and a stream id from the adapter's
+    resolved name (``/imu_adapter``), so that each adapter draws its own stream and the
+    offline path (quadrivio.offline) draws the same readings as the adapters."""
+    return np.random.default_rng([seed, zlib.crc32(name.encode())])
 
 
 @dataclass(frozen=True)

@@ -17,19 +17,34 @@ the readings waiting for their delivery time are dropped (not held until sim tim
 passes their pre-reset stamps), and the noise and latency models start again from the
 run's seed, as at launch.
 
-Nodes: ``gps_adapter`` (/sim/gps -> gps/fix NavSatFix, gps/vel TwistStamped, optional
-NMEA on a pseudo-terminal or TCP), ``imu_adapter`` (/sim/imu -> imu/data Imu),
-``mag_adapter`` (/sim/mag -> imu/mag MagneticField), ``laser_adapter`` (scan_in ->
-scan LaserScan), ``camera_adapter`` (image_in, camera_info_in -> image_raw, camera_info).
+Adapters: ``gps`` (sim/gps -> gps/fix NavSatFix, gps/vel TwistStamped, optional NMEA on
+a pseudo-terminal or TCP), ``imu`` (sim/imu -> imu/data Imu), ``mag`` (sim/mag ->
+imu/mag MagneticField), ``laser`` (scan_in -> scan LaserScan), ``camera`` (image_in,
+camera_info_in -> image_raw, camera_info). All topic names are relative, remapped in launch.
+
+Processes. ``sensor_adapters`` hosts several adapters in one process, still outside the
+simulator (the paper's layer 2), which is how ``adapters.launch`` runs them: every Python
+process pays for each /clock tick, its timer threads and its connections, whatever it
+publishes (about 0.014 CPU s per simulated second each, measured), and five adapters in
+one process pay it once. Its parameters, after costmap_2d's plugins::
+
+    adapters: [{name: imu_adapter, type: imu}, {name: laser_front, type: laser}, ...]
+    imu_adapter: {...the adapter's parameters, config/imu.yaml...}
+
+and each hosted adapter's topics are its standalone names under its own name
+(``imu_adapter/imu/data``, ``laser_front/scan_in``), remapped in launch. An adapter's
+noise stream and its diagnostics are named after it, not after the process: the same seed
+gives the same readings hosted or alone. ``gps_adapter``, ``imu_adapter``, ``mag_adapter``,
+``laser_adapter`` and ``camera_adapter`` run one adapter as its own node, with its
+parameters private and its topics in the node's namespace.
 """
 
 from __future__ import annotations
 
 import math
 import threading
-import zlib
 from collections import deque
-from typing import Callable, Deque, Tuple
+from typing import Any, Callable, Deque, Dict, List, Tuple
 
 import numpy as np
 import rospy
@@ -39,19 +54,42 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
 from quadrivio_description.ros import lockstep
-from quadrivio_description.ros.params import fatal, node_params, run_seed, site_params, with_scenario
+from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
                               MagAdapterParams)
 from ..nmea_out import NmeaEncoder, open_output
-from ..noise import NO_FIX, GpsNoise, ImuNoise, LaserNoise, Latency, MagNoise
+from ..noise import NO_FIX, adapter_rng, GpsNoise, ImuNoise, LaserNoise, Latency, MagNoise
 
 
-def node_rng(seed: int) -> np.random.Generator:
-    """This node's generator: the run's seed and a stream id from the node's name."""
-    return np.random.default_rng([seed, zlib.crc32(rospy.get_name().encode())])
+class Slot:
+    """One adapter in its process: its name, its parameters and where its topics are.
+
+    ``name``: the adapter's resolved name (``/imu_adapter``: a standalone node's name, or
+    a hosted adapter's name in the host's namespace, so that hosting changes no reading:
+    it is its noise stream's id); ``data``: its parameters;
+    ``prefix``: what its relative topic names are put under ("" for a standalone node,
+    ``imu_adapter/`` in a host)."""
+
+    def __init__(self, name: str, data: Dict[str, Any], prefix: str) -> None:
+        self.name, self.data, self.prefix = name, data, prefix
+
+    @property
+    def short(self) -> str:
+        return self.name.rsplit("/", 1)[-1]
+
+    def params(self, cls, section: str):
+        """Its parameters as ``cls``, with the scenario's ``/scenario/<section>`` applied."""
+        source = self.name if not self.prefix else rospy.get_name() + "/" + self.short
+        return with_scenario(node_params(cls, self.data, source), section)
+
+    def topic(self, name: str) -> str:
+        return self.prefix + name
+
+    def rng(self) -> np.random.Generator:
+        return adapter_rng(run_seed(), self.name)
 
 
 class DelayedOutput:
@@ -66,18 +104,13 @@ class DelayedOutput:
     def __init__(self, build: Callable[[], Latency], release_period: float) -> None:
         self.build = build
         self.latency = build()
+        self.release_period = release_period
         self.queue: Deque[Tuple[float, Callable[[], None]]] = deque()
         self.lock = threading.Lock()
         self.delivered = 0
         self.dropped_at_jumps = 0
         self.guard = input_guard()
-        if not self.latency.zero:
-            guarded_timer(release_period, self._drain, "delayed delivery")
         on_clock_jump(self._on_clock_jump)
-        self.diag = Updater()
-        self.diag.setHardwareID(rospy.get_name())
-        self.diag.add("sensor adapter", self._diagnose)
-        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
 
     def accept(self, what: str, stamp: float, *values: float) -> bool:
         check_clock()
@@ -101,7 +134,7 @@ class DelayedOutput:
             self.queue.append((self.latency.deliver_at(stamp), action))
         self._drain(None)
 
-    def _drain(self, _event) -> None:
+    def _drain(self, _event=None) -> None:
         # The timer thread and the subscriber thread both drain: popping and publishing
         # under one lock keeps the publication order the queue's order.
         now = rospy.get_time()
@@ -119,6 +152,32 @@ class DelayedOutput:
         return stat
 
 
+class Host:
+    """The adapters of one process: one delivery timer and one diagnostics updater for
+    all of them (each a status of its own, named after the adapter)."""
+
+    def __init__(self) -> None:
+        self.outputs: List[DelayedOutput] = []
+        self.diag = Updater()
+        self.diag.setHardwareID(rospy.get_name())
+
+    def output(self, slot: Slot, build: Callable[[], Latency], release_period: float) -> DelayedOutput:
+        out = DelayedOutput(build, release_period)
+        self.outputs.append(out)
+        self.diag.add(f"{slot.short} adapter", out._diagnose)
+        return out
+
+    def start(self) -> None:
+        delayed = [o for o in self.outputs if not o.latency.zero]
+        if delayed:
+            guarded_timer(min(o.release_period for o in delayed), self._drain, "delayed delivery")
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
+
+    def _drain(self, _event) -> None:
+        for out in self.outputs:
+            out._drain()
+
+
 def _stamp(t: float) -> rospy.Time:
     return rospy.Time.from_sec(t)
 
@@ -127,10 +186,11 @@ def _stamp(t: float) -> rospy.Time:
 
 
 class GpsAdapter:
-    def __init__(self) -> None:
-        self.p = with_scenario(node_params(GpsAdapterParams), "sensors/gps")
+    def __init__(self, host: Host, slot: Slot) -> None:
+        self.slot = slot
+        self.p = slot.params(GpsAdapterParams, "sensors/gps")
         site = site_params()
-        self.out = DelayedOutput(self._build, self.p.release_period)
+        self.out = host.output(slot, self._build, self.p.release_period)
         self.frame = site.local_frame()
         self.encoder = NmeaEncoder(self.frame, site.utc_epoch, self.p.nmea.geoid_separation, self.p.nmea.talker)
         try:
@@ -140,19 +200,20 @@ class GpsAdapter:
         if self.nmea is not None:
             rospy.loginfo("NMEA output on %s", self.nmea.address)
             rospy.on_shutdown(self.nmea.close)
-        self.pub_fix = rospy.Publisher("gps/fix", NavSatFix, queue_size=10) if self.p.publish_fix else None
-        self.pub_vel = rospy.Publisher("gps/vel", TwistStamped, queue_size=10) if self.p.publish_fix else None
-        rospy.Subscriber("/sim/gps", RawGps, self._on_raw, queue_size=100)
+        self.pub_fix = rospy.Publisher(slot.topic("gps/fix"), NavSatFix, queue_size=10) if self.p.publish_fix else None
+        self.pub_vel = rospy.Publisher(slot.topic("gps/vel"), TwistStamped, queue_size=10) if self.p.publish_fix else None
+        self.input = rospy.resolve_name(slot.topic("sim/gps"))  # remapped: for error messages
+        rospy.Subscriber(self.input, RawGps, self._on_raw, queue_size=100)
 
     def _build(self) -> Latency:
-        rng = node_rng(run_seed())
+        rng = self.slot.rng()
         self.noise = GpsNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
 
     def _on_raw(self, m: RawGps) -> None:
         t = m.header.stamp.to_sec()
         p, v = m.position, m.velocity
-        if not self.out.accept("/sim/gps", t, p.x, p.y, p.z, v.x, v.y, v.z):
+        if not self.out.accept(self.input, t, p.x, p.y, p.z, v.x, v.y, v.z):
             return
         r = self.noise.apply(t, (m.position.x, m.position.y, m.position.z), (m.velocity.x, m.velocity.y, m.velocity.z))
         fix = NavSatFix()
@@ -186,20 +247,22 @@ class GpsAdapter:
 
 
 class ImuAdapter:
-    def __init__(self) -> None:
-        self.p = with_scenario(node_params(ImuAdapterParams), "sensors/imu")
-        self.out = DelayedOutput(self._build, self.p.release_period)
-        self.pub = rospy.Publisher("imu/data", Imu, queue_size=100)
-        rospy.Subscriber("/sim/imu", Imu, self._on_raw, queue_size=200)
+    def __init__(self, host: Host, slot: Slot) -> None:
+        self.slot = slot
+        self.p = slot.params(ImuAdapterParams, "sensors/imu")
+        self.out = host.output(slot, self._build, self.p.release_period)
+        self.pub = rospy.Publisher(slot.topic("imu/data"), Imu, queue_size=100)
+        self.input = rospy.resolve_name(slot.topic("sim/imu"))  # remapped: for error messages
+        rospy.Subscriber(self.input, Imu, self._on_raw, queue_size=200)
 
     def _build(self) -> Latency:
-        rng = node_rng(run_seed())
+        rng = self.slot.rng()
         self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
         return Latency(self.p.latency, rng)
 
     def _on_raw(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
-        if not self.out.accept("/sim/imu", m.header.stamp.to_sec(), a.x, a.y, a.z, w.x, w.y, w.z):
+        if not self.out.accept(self.input, m.header.stamp.to_sec(), a.x, a.y, a.z, w.x, w.y, w.z):
             return
         f, g = self.noise.apply((a.x, a.y, a.z), (w.x, w.y, w.z))
         out = Imu()
@@ -218,20 +281,22 @@ class ImuAdapter:
 
 
 class MagAdapter:
-    def __init__(self) -> None:
-        self.p = with_scenario(node_params(MagAdapterParams), "sensors/mag")
-        self.out = DelayedOutput(self._build, self.p.release_period)
-        self.pub = rospy.Publisher("imu/mag", MagneticField, queue_size=50)
-        rospy.Subscriber("/sim/mag", MagneticField, self._on_raw, queue_size=100)
+    def __init__(self, host: Host, slot: Slot) -> None:
+        self.slot = slot
+        self.p = slot.params(MagAdapterParams, "sensors/mag")
+        self.out = host.output(slot, self._build, self.p.release_period)
+        self.pub = rospy.Publisher(slot.topic("imu/mag"), MagneticField, queue_size=50)
+        self.input = rospy.resolve_name(slot.topic("sim/mag"))  # remapped: for error messages
+        rospy.Subscriber(self.input, MagneticField, self._on_raw, queue_size=100)
 
     def _build(self) -> Latency:
-        rng = node_rng(run_seed())
+        rng = self.slot.rng()
         self.noise = MagNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
 
     def _on_raw(self, m: MagneticField) -> None:
         h = m.magnetic_field
-        if not self.out.accept("/sim/mag", m.header.stamp.to_sec(), h.x, h.y, h.z):
+        if not self.out.accept(self.input, m.header.stamp.to_sec(), h.x, h.y, h.z):
             return
         x, y, z = self.noise.apply((h.x, h.y, h.z))
         out = MagneticField()
@@ -247,20 +312,21 @@ class MagAdapter:
 
 
 class LaserAdapter:
-    def __init__(self) -> None:
-        name = rospy.get_name().rsplit("/", 1)[-1]
-        self.p = with_scenario(node_params(LaserAdapterParams), f"sensors/{name}")
-        self.out = DelayedOutput(self._build, self.p.release_period)
-        self.pub = rospy.Publisher("scan", LaserScan, queue_size=10)
-        rospy.Subscriber("scan_in", LaserScan, self._on_raw, queue_size=20)
+    def __init__(self, host: Host, slot: Slot) -> None:
+        self.slot = slot
+        self.p = slot.params(LaserAdapterParams, f"sensors/{slot.short}")
+        self.out = host.output(slot, self._build, self.p.release_period)
+        self.pub = rospy.Publisher(slot.topic("scan"), LaserScan, queue_size=10)
+        self.input = rospy.resolve_name(slot.topic("scan_in"))  # remapped: for error messages
+        rospy.Subscriber(self.input, LaserScan, self._on_raw, queue_size=20)
 
     def _build(self) -> Latency:
-        rng = node_rng(run_seed())
+        rng = self.slot.rng()
         self.noise = LaserNoise(self.p.noise, rng)
         return Latency(self.p.latency, rng)
 
     def _on_raw(self, m: LaserScan) -> None:
-        if not self.out.accept("scan_in", m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
+        if not self.out.accept(self.input, m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
             return
         out = LaserScan()
         out.header.stamp = m.header.stamp
@@ -276,25 +342,26 @@ class LaserAdapter:
 
 
 class CameraAdapter:
-    def __init__(self) -> None:
-        name = rospy.get_name().rsplit("/", 1)[-1]
-        self.p = with_scenario(node_params(CameraAdapterParams), f"sensors/{name}")
-        self.out = DelayedOutput(self._build, self.p.release_period)
+    def __init__(self, host: Host, slot: Slot) -> None:
+        self.slot = slot
+        self.p = slot.params(CameraAdapterParams, f"sensors/{slot.short}")
+        self.out = host.output(slot, self._build, self.p.release_period)
         self.info = None
-        self.pub_image = rospy.Publisher("image_raw", Image, queue_size=2)
-        self.pub_info = rospy.Publisher("camera_info", CameraInfo, queue_size=2)
-        rospy.Subscriber("camera_info_in", CameraInfo, self._on_info, queue_size=2)
-        rospy.Subscriber("image_in", Image, self._on_image, queue_size=2)
+        self.pub_image = rospy.Publisher(slot.topic("image_raw"), Image, queue_size=2)
+        self.pub_info = rospy.Publisher(slot.topic("camera_info"), CameraInfo, queue_size=2)
+        rospy.Subscriber(slot.topic("camera_info_in"), CameraInfo, self._on_info, queue_size=2)
+        self.input = rospy.resolve_name(slot.topic("image_in"))  # remapped: for error messages
+        rospy.Subscriber(self.input, Image, self._on_image, queue_size=2)
 
     def _build(self) -> Latency:
-        self.rng = node_rng(run_seed())
+        self.rng = self.slot.rng()
         return Latency(self.p.latency, self.rng)
 
     def _on_info(self, m: CameraInfo) -> None:
         self.info = m
 
     def _on_image(self, m: Image) -> None:
-        if not self.out.accept("image_in", m.header.stamp.to_sec()):
+        if not self.out.accept(self.input, m.header.stamp.to_sec()):
             return
         pixels = np.frombuffer(m.data, dtype=np.uint8).astype(np.float32)
         pixels += self.rng.normal(0.0, self.p.pixel_noise_std, pixels.shape).astype(np.float32)
@@ -313,12 +380,50 @@ class CameraAdapter:
         self.out.push(m.header.stamp.to_sec(), deliver)
 
 
-ADAPTERS = {"gps_adapter": GpsAdapter, "imu_adapter": ImuAdapter, "mag_adapter": MagAdapter,
-            "laser_adapter": LaserAdapter, "camera_adapter": CameraAdapter}
+KINDS = {"gps": GpsAdapter, "imu": ImuAdapter, "mag": MagAdapter, "laser": LaserAdapter, "camera": CameraAdapter}
+NODE_KINDS = {"gps_adapter": "gps", "imu_adapter": "imu", "mag_adapter": "mag", "laser_adapter": "laser",
+              "camera_adapter": "camera"}
 
 
-def main(kind: str) -> None:
-    rospy.init_node(kind)
+def hosted_slots(params: Dict[str, Any], namespace: str) -> List[Tuple[str, Slot]]:
+    """The ``(type, slot)`` of every adapter a host's parameters list (see the module
+    docstring); raises ValueError naming what is wrong."""
+    entries = params.get("adapters")
+    if not isinstance(entries, list) or not entries:
+        raise ValueError("~adapters must be a non-empty list of {name: ..., type: ...}")
+    slots, seen = [], set()
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict) or set(entry) != {"name", "type"}:
+            raise ValueError(f"~adapters[{i}] = {entry!r}: must be {{name: ..., type: ...}} and nothing else")
+        name, kind = entry["name"], entry["type"]
+        if kind not in KINDS:
+            raise ValueError(f"~adapters[{i}]: unknown type {kind!r} (one of {', '.join(sorted(KINDS))})")
+        if not isinstance(name, str) or not name or "/" in name or name in seen:
+            raise ValueError(f"~adapters[{i}]: name {name!r} must be a plain name, given once")
+        seen.add(name)
+        data = params.get(name, {})
+        if not isinstance(data, dict):
+            raise ValueError(f"~{name} must be a dictionary of {kind} adapter parameters, not {data!r}")
+        slots.append((kind, Slot(namespace + name, data, name + "/")))
+    unused = set(params) - seen - {"adapters"}
+    if unused:
+        raise ValueError(f"parameters for no listed adapter: ~{', ~'.join(sorted(unused))}")
+    return slots
+
+
+def main(kind: str = "") -> None:
+    """``kind`` "": the host (``sensor_adapters``); else one adapter as its own node."""
+    rospy.init_node(kind or "sensor_adapters")
     lockstep.install()  # a no-op unless sim.launch lockstep:=true
-    ADAPTERS[kind]()
+    if kind:
+        slots = [(NODE_KINDS[kind], Slot(rospy.get_name(), private_params(), ""))]
+    else:
+        try:
+            slots = hosted_slots(private_params(), rospy.get_namespace())
+        except ValueError as exc:
+            fatal(f"bad parameter: {exc}")
+    host = Host()
+    for k, slot in slots:
+        KINDS[k](host, slot)
+    host.start()
     rospy.spin()
