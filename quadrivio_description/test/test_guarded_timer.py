@@ -52,6 +52,9 @@ def sim_time():
     yield set_time
     stop.set()
     th.join()
+    if T._BEAT is not None:  # this clock's beat ends with it
+        T._BEAT.close()
+        T._BEAT = None
     rospy.rostime._rostime_current = None
 
 
@@ -123,3 +126,55 @@ def test_a_hook_that_fails_does_not_stop_the_others(monkeypatch, wall_time):
     now[0] = 2.0
     assert watch.check() and ran == [(11.0, 2.0)]
     assert not watch.check()  # once per jump
+
+
+def test_in_sim_time_a_timer_wakes_when_due_not_on_every_tick():
+    """SimBeat releases a waiter only once ROS time reaches its time, or moves back."""
+    now = [int(10e9)]
+    beat = T.SimBeat(now=lambda: now[0], cond=threading.Condition())
+    results = {}
+
+    def waiter(name, due):
+        results[name] = beat.wait(due, lambda: False)
+    a = threading.Thread(target=waiter, args=("a", int(11e9)))
+    b = threading.Thread(target=waiter, args=("b", int(12e9)))
+    a.start(), b.start()
+    wait(lambda: len(beat.waiting) == 2)
+    for t in (10.01, 10.5, 10.99):  # ticks before either is due release nothing
+        now[0] = int(t * 1e9)
+        beat.tick(now[0])
+    assert len(beat.waiting) == 2 and not results
+    now[0] = int(11e9)
+    beat.tick(now[0])
+    a.join(5.0)
+    assert results == {"a": int(11e9)} and len(beat.waiting) == 1
+    now[0] = int(3e9)  # time moves back (a reset): the other one is released too
+    beat.tick(now[0])
+    b.join(5.0)
+    assert results["b"] == int(3e9) and not beat.waiting
+
+
+def test_a_sim_time_timer_keeps_its_period_and_a_slow_one_delays_no_other(sim_time):
+    """Two timers on one beat: a 10 ms one keeps its rate of sim time while a 50 ms one
+    sleeps inside its callback (its own thread)."""
+    fast, slow = [], []
+    block = threading.Event()
+
+    def slow_cb(_e):
+        slow.append(rospy.get_time())
+        block.wait(0.2)  # wall seconds: many ticks of the fast timer
+    t1 = guarded_timer(0.01, lambda e: fast.append(rospy.get_time()), "fast")
+    t2 = guarded_timer(0.05, slow_cb, "slow")
+    assert isinstance(t1, T.SimTimer)
+    try:
+        wait(lambda: len(slow) >= 1 and len(fast) >= 60)
+        inside = [t for t in fast if t > slow[0]]
+        assert len(inside) >= 20  # the fast timer ran while the slow callback waited
+        rate = (len(fast) - 1) / (fast[-1] - fast[0])  # per second of sim time
+        assert 50.0 < rate < 105.0, rate  # 100 (fewer only if it fell two periods behind)
+    finally:
+        block.set()
+        for t in (t1, t2):
+            t.shutdown()
+            t.join(5.0)
+    assert not t1.is_alive() and not t2.is_alive()

@@ -17,6 +17,7 @@ queues, histories): one watcher thread per process notices the jump within
 from __future__ import annotations
 
 import threading
+import time
 import traceback
 from typing import Callable, List, Optional
 
@@ -45,7 +46,129 @@ def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], No
     m = lockstep.member()
     if m is not None:  # run in the simulator's rounds (see lockstep.py), not on a thread
         return m.add_timer(period, run)
+    if not rospy.rostime.is_wallclock():
+        return SimTimer(period, run, _beat())
     return rospy.Timer(rospy.Duration(period), run, reset=True)
+
+
+class SimBeat:
+    """Wakes sim-time timers when they are due, not on every /clock tick.
+
+    rospy wakes every thread sleeping in sim time on every /clock message (one
+    ``notify_all`` on one condition): a process with a 1 Hz diagnostics timer, a 20 Hz
+    cycle and a 50 Hz one woke three threads 100 times per simulated second, and the
+    wake-ups were a fifth to a third of its Python time (py-spy, the figure eight). One
+    thread per process waits on rospy's condition instead and sets each timer's event when
+    its time has come, or when time moved back (the timer starts its period again, as
+    rospy's ``reset=True``). Each timer keeps a thread of its own, so one slow callback
+    delays no other."""
+
+    def __init__(self, now: Callable[[], int] = lambda: rospy.rostime.get_rostime().to_nsec(),
+                 cond: Optional[threading.Condition] = None) -> None:
+        self.now = now
+        self.cond = cond if cond is not None else rospy.rostime.get_rostime_cond()
+        self.lock = threading.Lock()
+        self.waiting: List[list] = []  # [due_ns, event, ROS time when it began to wait]
+        self.thread: Optional[threading.Thread] = None
+        self.closed = False
+
+    def wait(self, due_ns: int, stop: Callable[[], bool]) -> int:
+        """Block until ROS time reaches ``due_ns`` or moves back (or ``stop()``); the time then."""
+        event = threading.Event()
+        with self.lock:
+            now = self.now()
+            if now >= due_ns or self.closed:
+                return now
+            self.waiting.append([due_ns, event, now])
+            if self.thread is None:
+                self.thread = threading.Thread(target=self._loop, name="sim_beat", daemon=True)
+                self.thread.start()
+        while not event.wait(0.5):
+            if stop():
+                break
+        return self.now()
+
+    def tick(self, now: int) -> None:
+        """Release the waiters that are due at ``now``, and all of them if time moved back."""
+        with self.lock:
+            due = [w for w in self.waiting if now >= w[0] or now < w[2]]
+            self.waiting = [w for w in self.waiting if not (now >= w[0] or now < w[2])]
+        for w in due:
+            w[1].set()
+
+    def close(self) -> None:
+        """Stop the thread and release every waiter."""
+        self.closed = True
+        with self.cond:
+            self.cond.notify_all()
+
+    def _loop(self) -> None:
+        seen = None
+        while not (self.closed or rospy.core.is_shutdown_requested()):
+            with self.cond:
+                while self.now() == seen and not (self.closed or rospy.core.is_shutdown_requested()):
+                    self.cond.wait(0.5)
+                seen = self.now()
+            self.tick(seen)
+            if rospy.rostime.is_wallclock():  # no /clock any more (a test): wall time never stops moving
+                time.sleep(0.01)
+        with self.lock:
+            waiting, self.waiting = self.waiting, []
+        for w in waiting:
+            w[1].set()
+
+
+class SimTimer:
+    """A sim-time timer on :class:`SimBeat`: calls ``callback(None)`` every ``period`` of ROS
+    time (a period behind by more than two starts again from now, as rospy.Rate), and
+    starts its period again when time moves back."""
+
+    def __init__(self, period: float, callback: Callable, beat: SimBeat) -> None:
+        self.period_ns = int(round(period * 1e9))
+        self.callback, self.beat = callback, beat
+        self._shutdown = False
+        self.thread = threading.Thread(target=self._run, name="sim_timer", daemon=True)
+        self.thread.start()
+
+    def shutdown(self) -> None:
+        self._shutdown = True
+
+    def join(self, timeout: Optional[float] = None) -> None:
+        self.thread.join(timeout)
+
+    def is_alive(self) -> bool:
+        return self.thread.is_alive()
+
+    def _stopped(self) -> bool:
+        return self._shutdown or rospy.core.is_shutdown_requested()
+
+    def _run(self) -> None:
+        due = self.beat.now() + self.period_ns
+        while not self._stopped():
+            now = self.beat.wait(due, self._stopped)
+            if self._stopped() or self.beat.closed:
+                return
+            if now < due - self.period_ns:  # time moved back: a new period from now
+                due = now + self.period_ns
+                continue
+            if now < due:  # woken early (the 0.5 s wait): wait again
+                continue
+            self.callback(None)
+            due += self.period_ns
+            if now - due > 2 * self.period_ns:
+                due = now + self.period_ns
+
+
+_BEAT: Optional[SimBeat] = None
+_BEAT_LOCK = threading.Lock()
+
+
+def _beat() -> SimBeat:
+    global _BEAT
+    with _BEAT_LOCK:
+        if _BEAT is None:
+            _BEAT = SimBeat()
+        return _BEAT
 
 
 class ClockWatch:
