@@ -24,7 +24,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from common import RESULTS, experiment, machine, write_result  # noqa: E402
 
-FACTORS = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+FACTORS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
 KEYS = ("xte_rmse_m", "xte_max_m")
 SCENARIO = "figure_eight"
 
