@@ -57,19 +57,24 @@ class SimBeat:
     rospy wakes every thread sleeping in sim time on every /clock message (one
     ``notify_all`` on one condition): a process with a 1 Hz diagnostics timer, a 20 Hz
     cycle and a 50 Hz one woke three threads 100 times per simulated second, and the
-    wake-ups were a fifth to a third of its Python time (py-spy, the figure eight). One
-    thread per process waits on rospy's condition instead and sets each timer's event when
-    its time has come, or when time moved back (the timer starts its period again, as
-    rospy's ``reset=True``). Each timer keeps a thread of its own, so one slow callback
-    delays no other."""
+    wake-ups were a fifth to a third of its Python time (py-spy, the figure eight). The
+    beat sets each timer's event when its time has come, or when time moved back (the
+    timer starts its period again, as rospy's ``reset=True``); each timer keeps a thread of
+    its own, so one slow callback delays no other. In a node (``on_clock``) the beat runs
+    in the thread that receives /clock, as one more callback of rospy's own subscription
+    (rospy shares one per topic and process, and calls its callbacks in order: the time is
+    set first), so a tick wakes no thread that has nothing due; otherwise (a test's clock)
+    a thread of its own waits on rospy's condition."""
 
     def __init__(self, now: Callable[[], int] = lambda: rospy.rostime.get_rostime().to_nsec(),
-                 cond: Optional[threading.Condition] = None) -> None:
+                 cond: Optional[threading.Condition] = None, on_clock: bool = False) -> None:
         self.now = now
         self.cond = cond if cond is not None else rospy.rostime.get_rostime_cond()
+        self.on_clock = on_clock
         self.lock = threading.Lock()
         self.waiting: List[list] = []  # [due_ns, event, ROS time when it began to wait]
         self.thread: Optional[threading.Thread] = None
+        self.started = False
         self.closed = False
 
     def wait(self, due_ns: int, stop: Callable[[], bool]) -> int:
@@ -80,9 +85,14 @@ class SimBeat:
             if now >= due_ns or self.closed:
                 return now
             self.waiting.append([due_ns, event, now])
-            if self.thread is None:
-                self.thread = threading.Thread(target=self._loop, name="sim_beat", daemon=True)
-                self.thread.start()
+            if not self.started:
+                self.started = True
+                if self.on_clock:
+                    from rosgraph_msgs.msg import Clock
+                    rospy.Subscriber("/clock", Clock, lambda _m: self.tick(self.now()), queue_size=1)
+                else:
+                    self.thread = threading.Thread(target=self._loop, name="sim_beat", daemon=True)
+                    self.thread.start()
         while not event.wait(0.5):
             if stop():
                 break
@@ -167,7 +177,7 @@ def _beat() -> SimBeat:
     global _BEAT
     with _BEAT_LOCK:
         if _BEAT is None:
-            _BEAT = SimBeat()
+            _BEAT = SimBeat(on_clock=rospy.core.is_initialized())
         return _BEAT
 
 
