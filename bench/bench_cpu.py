@@ -11,10 +11,19 @@ tracking come from the run's metrics.json.
 
 Writes bench/results/cpu.json (``cpu_per_sim_s``: factor -> process -> CPU s per sim s;
 ``sensors_cpu_per_sim_s_f1``: simulator plus every adapter at factor 1, in the closed loop) and cpu.md (the table).
+
+Profiles: during the factor-1 run, the two Python processes that used the most CPU in its
+first seconds are sampled by py-spy (requirements.txt; non-blocking, 100 Hz, 25 s, the
+thread holding the GIL: a thread blocked in recv or select looks busy to py-spy otherwise,
+and GTSAM and PyBullet keep the GIL while they compute): ``pyspy_<process>.svg`` (a
+flame graph) and ``pyspy.md`` (each one's functions by their own samples and by the
+samples under them, in % of the samples, where 100 % is the time it held the GIL).
 """
+import collections
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import threading
@@ -73,13 +82,79 @@ def sample(stop: threading.Event, seen: Dict[str, tuple], running: threading.Eve
         stop.wait(0.25)
 
 
-def run(rtf: float) -> dict:
+PROFILE_AFTER, PROFILE_FOR = 8.0, 25  # [s wall] from the run's start; how long
+
+
+def _python(pid: str) -> bool:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return b"python" in fh.read().split(b"\0")[0]
+    except OSError:
+        return False
+
+
+def profile(seen: Dict[str, tuple], base: Dict[str, float], running: threading.Event, stop: threading.Event,
+            done: Dict[str, str]) -> None:
+    """py-spy on the two busiest Python processes (see the module docstring); ``done``:
+    process name -> raw samples file."""
+    spy = shutil.which("py-spy")
+    if spy is None:
+        print("[bench cpu] py-spy not found (pip install -r requirements.txt): no profiles", flush=True)
+        return
+    if not running.wait(120) or stop.wait(PROFILE_AFTER):
+        return
+    used = sorted(((cpu - base.get(pid, cpu), pid, name) for pid, (name, cpu) in list(seen.items())
+                   if _python(pid)), reverse=True)[:2]
+    procs = []
+    for _, pid, name in used:
+        raw = os.path.join(RESULTS, f".pyspy_{name}.txt")
+        for fmt, path in (("flamegraph", os.path.join(RESULTS, f"pyspy_{name}.svg")), ("raw", raw)):
+            procs.append(subprocess.Popen([spy, "record", "--pid", pid, "--duration", str(PROFILE_FOR), "--rate", "100",
+                                           "--nonblocking", "--gil", "--format", fmt, "--output", path],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+        done[name] = raw
+    for p in procs:
+        _, err = p.communicate()
+        if p.returncode != 0:
+            print(f"[bench cpu] py-spy failed: {err.strip().splitlines()[-1:] or p.returncode}", flush=True)
+
+
+def summarise(raw: str, top: int = 12) -> str:
+    """A py-spy raw file (``frame;frame;... count`` lines) as two Markdown lists: functions
+    by their own samples, and by the samples in and under them."""
+    own, under, total = collections.Counter(), collections.Counter(), 0
+    with open(raw) as fh:
+        for line in fh:
+            stack, _, n = line.rstrip().rpartition(" ")
+            if not stack or not n.isdigit():
+                continue
+            frames = [f for f in stack.split(";") if not f.startswith("thread (")]
+            if not frames:
+                continue
+            total += int(n)
+            own[frames[-1]] += int(n)
+            for f in set(frames):
+                under[f] += int(n)
+    if not total:
+        return "no samples\n"
+    out = [f"{total} samples; own:"]
+    out += [f"- {100 * c / total:.1f} % {f}" for f, c in own.most_common(top)]
+    out.append("in and under:")
+    out += [f"- {100 * c / total:.1f} % {f}" for f, c in under.most_common(top + 8) if not f.startswith("<module>")
+            and "Thread._bootstrap" not in f][:top]
+    return "\n".join(out) + "\n"
+
+
+def run(rtf: float, profiles: Dict[str, str] = None) -> dict:
     out = os.path.join(RESULTS, f".cpu_rtf{rtf:g}")
     seen: Dict[str, tuple] = {}
     base: Dict[str, float] = {}
     stop, running = threading.Event(), threading.Event()
     th = threading.Thread(target=sample, args=(stop, seen, running, base), daemon=True)
     th.start()
+    if profiles is not None:
+        prof = threading.Thread(target=profile, args=(seen, base, running, stop, profiles), daemon=True)
+        prof.start()
     t0 = time.monotonic()
     proc = subprocess.Popen(["rosrun", "quadrivio", "experiment", SCENARIO, "--rtf", str(rtf), "--out", out,
                              "--wall-timeout", "400"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -91,6 +166,8 @@ def run(rtf: float) -> dict:
     proc.wait()
     stop.set()
     th.join()
+    if profiles is not None:
+        prof.join()
     wall = time.monotonic() - t0
     try:
         with open(os.path.join(out, "metrics.json")) as fh:
@@ -123,7 +200,8 @@ def table(runs: Dict[float, dict]) -> str:
 
 
 def main():
-    runs = {f: run(f) for f in FACTORS}
+    profiles: Dict[str, str] = {}
+    runs = {f: run(f, profiles if f == FACTORS[0] else None) for f in FACTORS}
     one = runs[FACTORS[0]]["per"]
     result = {"scenario": f"{SCENARIO} (its seed)", "machine": machine(),
               "unit": "CPU seconds per simulated second, per process (all its threads)",
@@ -139,6 +217,14 @@ def main():
         fh.write(table(runs))
     os.replace(md + ".tmp", md)
     print(table(runs))
+    if profiles:
+        text = "".join(f"## {name} (py-spy, factor {FACTORS[0]:g})\n\n{summarise(raw)}\n"
+                       for name, raw in profiles.items() if os.path.exists(raw))
+        path = os.path.join(RESULTS, "pyspy.md")
+        with open(path + ".tmp", "w") as fh:
+            fh.write(text)
+        os.replace(path + ".tmp", path)
+        print(text)
 
 
 if __name__ == "__main__":
