@@ -34,6 +34,8 @@ from typing import Dict, Optional
 
 import numpy as np
 
+from quadrivio_description.frames import quaternion_from_yaw, yaw_from_quaternion
+
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 
 
@@ -163,7 +165,7 @@ class PeerRun:
 
         def on_odom(m: Odometry) -> None:
             q = m.pose.pose.orientation
-            yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+            yaw = yaw_from_quaternion(q.x, q.y, q.z, q.w)
             with lock:
                 outputs.append((m.header.stamp.to_sec(), m.pose.pose.position.x, m.pose.pose.position.y, yaw))
                 lock.notify_all()
@@ -237,7 +239,7 @@ class PeerRun:
                 m = Imu()
                 m.header.stamp, m.header.frame_id = stamp_of(t), "base_link"
                 yaw = mag_yaw[0]
-                m.orientation.z, m.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+                m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w = quaternion_from_yaw(yaw)
                 m.orientation_covariance = [1e3, 0, 0, 0, 1e3, 0, 0, 0, 0.05 ** 2]
                 m.angular_velocity.z = last_w[0]
                 m.angular_velocity_covariance = [1e3, 0, 0, 0, 1e3, 0, 0, 0, 0.02 ** 2]

@@ -1,4 +1,5 @@
-"""Rotations of sensor mounts: roll, pitch, yaw (URDF/REP-103 convention, ZYX)."""
+"""Rotations: roll, pitch, yaw (URDF/REP-103 convention, ZYX), quaternions ``(x, y, z, w)``
+and their matrices; the one home of these conversions for every package."""
 
 from __future__ import annotations
 
@@ -42,3 +43,26 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
 def quaternion_from_yaw(yaw: float) -> Tuple[float, float, float, float]:
     """The quaternion ``(x, y, z, w)`` of a rotation by ``yaw`` [rad] about z."""
     return 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+
+
+def rpy_from_quaternion(x: float, y: float, z: float, w: float) -> Vec3:
+    """Roll, pitch, yaw [rad] (ZYX, as tf and the URDF) of a unit quaternion ``(x, y, z, w)``."""
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    return roll, pitch, yaw_from_quaternion(x, y, z, w)
+
+
+def quaternion_from_rpy(roll: float, pitch: float, yaw: float) -> Tuple[float, float, float, float]:
+    """The quaternion ``(x, y, z, w)`` of roll, pitch, yaw [rad] (ZYX)."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy)
+
+
+def matrix_from_quaternion(x: float, y: float, z: float, w: float) -> Tuple[Vec3, Vec3, Vec3]:
+    """The rotation matrix of a unit quaternion ``(x, y, z, w)``, as rows."""
+    return ((1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)),
+            (2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)),
+            (2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)))

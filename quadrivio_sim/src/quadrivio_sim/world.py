@@ -29,6 +29,7 @@ import pybullet
 from pybullet_utils import bullet_client
 
 from quadrivio_description.config import ConfigError, param
+from quadrivio_description.frames import matrix_from_quaternion, quaternion_from_rpy, rpy_from_quaternion
 from quadrivio_description.kinematics import ackermann_wheel_angles
 from quadrivio_description.vehicle import GRAVITY, VehicleParams
 
@@ -67,14 +68,9 @@ def quat_to_matrix(q: Sequence[float]) -> np.ndarray:
     return np.array(quat_to_rows(q))
 
 
-def quat_to_rows(q: Sequence[float]) -> List[List[float]]:
-    """Rotation matrix of a unit quaternion ``(x, y, z, w)`` as nested lists (no numpy)."""
-    x, y, z, w = q
-    return [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
+def quat_to_rows(q: Sequence[float]):
+    """Rotation matrix of a unit quaternion ``(x, y, z, w)`` as rows (no numpy)."""
+    return matrix_from_quaternion(*q)
 
 
 def rotate_inverse(R: List[List[float]], v: Sequence[float]) -> Vec3:
@@ -85,16 +81,7 @@ def rotate_inverse(R: List[List[float]], v: Sequence[float]) -> Vec3:
 
 def quat_to_rpy(q: Sequence[float]) -> Vec3:
     """Roll, pitch, yaw (ZYX) of a quaternion ``(x, y, z, w)`` [rad]."""
-    x, y, z, w = q
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
-
-
-def _rpy_to_quat(r: float, p: float, y: float) -> Quat:
-    cr, sr, cp, sp, cy, sy = math.cos(r / 2), math.sin(r / 2), math.cos(p / 2), math.sin(p / 2), math.cos(y / 2), math.sin(y / 2)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+    return rpy_from_quaternion(*q)
 
 
 def fixed_frames(urdf_text: str, root: str = "base_link") -> Dict[str, Tuple[Vec3, Quat]]:
@@ -109,7 +96,7 @@ def fixed_frames(urdf_text: str, root: str = "base_link") -> Dict[str, Tuple[Vec
         origin = j.find("origin")
         xyz = tuple(map(float, origin.get("xyz", "0 0 0").split())) if origin is not None else (0.0, 0.0, 0.0)
         rpy = tuple(map(float, origin.get("rpy", "0 0 0").split())) if origin is not None else (0.0, 0.0, 0.0)
-        children.setdefault(j.find("parent").get("link"), []).append((j.find("child").get("link"), xyz, _rpy_to_quat(*rpy)))
+        children.setdefault(j.find("parent").get("link"), []).append((j.find("child").get("link"), xyz, quaternion_from_rpy(*rpy)))
     frames: Dict[str, Tuple[Vec3, Quat]] = {}
     stack = [(root, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))]
     while stack:

@@ -29,6 +29,7 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 
+from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
 from quadrivio_description.ros import lockstep
@@ -41,7 +42,6 @@ from ..dead_reckoning import DeadReckoning
 from ..msg import Calibration
 from ..smoother import Localizer, LocalizerParams
 from . import messages as M
-from .messages import quaternion
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ class LocalizationNode:
             tr.header.frame_id, tr.child_frame_id = self.np.odom_frame, self.np.base_frame
             tr.transform.translation.x, tr.transform.translation.y = x, y
             q = tr.transform.rotation
-            q.x, q.y, q.z, q.w = quaternion(0.0, 0.0, th)
+            q.x, q.y, q.z, q.w = quaternion_from_yaw(th)
             self.tf.sendTransform(tr)
 
     def _on_imu(self, m: Imu) -> None:
@@ -183,7 +183,7 @@ class LocalizationNode:
         tr.transform.translation.x = est.x - (c * ox - s * oy)
         tr.transform.translation.y = est.y - (s * ox + c * oy)
         q = tr.transform.rotation
-        q.x, q.y, q.z, q.w = quaternion(0.0, 0.0, th)
+        q.x, q.y, q.z, q.w = quaternion_from_yaw(th)
         self.tf.sendTransform(tr)
 
     def _publish_calibration(self, est, sigma, stamp) -> None:

@@ -8,16 +8,10 @@ import math
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import NavSatFix
 
+from quadrivio_description.frames import quaternion_from_rpy
+
 from ..msg import Calibration
 from ..smoother import CALIBRATION_NAMES, Estimate, Localizer
-
-
-def quaternion(roll: float, pitch: float, yaw: float):
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy)
 
 
 # ------------------------------------------------------------------ inputs
@@ -53,7 +47,7 @@ def odometry(est: Estimate, map_frame: str, base_frame: str) -> Odometry:
     m.header.frame_id, m.child_frame_id = map_frame, base_frame
     p = m.pose.pose
     p.position.x, p.position.y, p.position.z = est.x, est.y, est.z
-    p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = quaternion(est.roll, est.pitch, est.theta)
+    p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = quaternion_from_rpy(est.roll, est.pitch, est.theta)
     cov = [0.0] * 36
     for i, a in enumerate((0, 1, 5)):  # x, y, yaw
         for j, b in enumerate((0, 1, 5)):
