@@ -69,6 +69,10 @@ class FollowerParams:
                                   "along the path in this long (blocked, stuck)")
     stall_distance: float = param(0.3, lo=0.01, hi=10.0, unit="m", doc="see stall_time")
     stop_brake: float = param(0.6, lo=0.0, hi=1.0, doc="brake when done or aborted")
+    setpoint_decel: float = param(2.0, lo=0.05, hi=10.0, unit="m/s^2",
+                                  doc="how fast the speed setpoint may fall, at least the profile's decel: a "
+                                      "vehicle lags its setpoint, so the profile at its position falls faster than "
+                                      "the profile's own rate, and a setpoint held to that rate overshot the goal")
     search_window: float = param(6.0, lo=0.5, hi=100.0, unit="m", doc="progress search window along the path")
 
     def __post_init__(self) -> None:
@@ -181,7 +185,7 @@ class PurePursuit:
         self.stopping = False
         self.t_last: Optional[float] = last_time
         self.sp_speed, self.sp_handlebar = last_speed, last_handlebar
-        self.accel = self.decel = math.inf
+        self.accel = self.decel = self.stop_decel = math.inf
         self.stall_ref: Optional[Tuple[float, float]] = None  # (time, route progress [m]) of the last progress
 
     @property
@@ -189,8 +193,10 @@ class PurePursuit:
         return self.route.segments[self.k].path
 
     def set_limits(self, accel: float, decel: float) -> None:
-        """Speed setpoint slew limits [m/s^2] (the speed profile's)."""
-        self.accel, self.decel = accel, decel
+        """Speed setpoint slew limits [m/s^2]: the speed profile's; when slowing down along
+        the profile at least ``setpoint_decel`` (see FollowerParams), in a controlled stop
+        the profile's own."""
+        self.accel, self.decel, self.stop_decel = accel, max(decel, self.p.setpoint_decel), decel
 
     # ------------------------------------------------------------------ ending
     def abort(self, reason: str, xte: float = 0.0) -> Command:
@@ -320,7 +326,7 @@ class PurePursuit:
         self.t_last = t
         prev = self.sp_speed
         speeding_up = abs(v_sp) > abs(prev) and v_sp * prev >= 0.0
-        limit = (self.accel if speeding_up else self.decel) * dt
+        limit = (self.accel if speeding_up else self.stop_decel if self.stopping else self.decel) * dt
         v = prev + max(-limit, min(limit, v_sp - prev))
         dh = self.rate * dt
         hh = self.sp_handlebar + max(-dh, min(dh, h - self.sp_handlebar))
