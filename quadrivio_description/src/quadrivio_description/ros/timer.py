@@ -17,7 +17,6 @@ queues, histories): one watcher thread per process notices the jump within
 from __future__ import annotations
 
 import threading
-import time
 import traceback
 from typing import Callable, List, Optional
 
@@ -121,7 +120,8 @@ class SimBeat:
                 seen = self.now()
             self.tick(seen)
             if rospy.rostime.is_wallclock():  # no /clock any more (a test): wall time never stops moving
-                time.sleep(0.01)
+                with self.cond:
+                    self.cond.wait(0.01)
         with self.lock:
             waiting, self.waiting = self.waiting, []
         for w in waiting:

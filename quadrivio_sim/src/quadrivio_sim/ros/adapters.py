@@ -164,7 +164,7 @@ class Host:
     def output(self, slot: Slot, build: Callable[[], Latency], release_period: float) -> DelayedOutput:
         out = DelayedOutput(build, release_period)
         self.outputs.append(out)
-        self.diag.add(f"{slot.short} adapter", out._diagnose)
+        self.diag.add(slot.short, out._diagnose)  # "imu_adapter", "laser_front", ...
         return out
 
     def start(self) -> None:
