@@ -168,9 +168,27 @@ class Runner:
         return bool(st) and any(s == service for s, _ in st[2])
 
     def _recording(self, master) -> bool:
+        """Whether the recorder is connected to every publisher of every topic it records.
+
+        Its subscriptions being registered with the master is not enough: rosbag subscribes
+        to the topics one after another and connects to each publisher after that, and what
+        is published before the connection is lost to the bag (a lockstep run's first scans
+        went missing from one of two runs of the same seed). The recorder's own bus
+        information lists its inbound connections by the publisher's URI."""
         st = self._system(master)
-        return bool(st) and any(t == "/ground_truth/odom" and any(n.startswith("/record") for n in nodes)
-                                for t, nodes in st[1])
+        if not st:
+            return False
+        subs = {t: nodes for t, nodes in st[1]}
+        recorders = {n for t in RECORD for n in subs.get(t, ()) if n.startswith("/record")}
+        if len(recorders) != 1 or any(not set(subs.get(t, ())) & recorders for t in RECORD):
+            return False  # not yet subscribed to every topic
+        try:
+            uri = lambda node: master.lookupNode("/experiment", node)[2]  # noqa: E731
+            info = xmlrpc.client.ServerProxy(uri(recorders.pop())).getBusInfo("/experiment")[2]
+            connected = {(c[4], c[1]) for c in info if c[2] == "i" and c[5]}
+            return all((t, uri(p)) in connected for t, pubs in st[0] if t in RECORD for p in pubs)
+        except (OSError, xmlrpc.client.Error, IndexError, TypeError):
+            return False  # a node going or coming: ask again
 
     def _on_status(self, m) -> None:
         self.status = m
