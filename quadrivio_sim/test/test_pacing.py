@@ -1,7 +1,7 @@
 """Pacer: waits when ahead, makes up a short lag, drops a long one."""
 import pytest
 
-from quadrivio_sim.pacing import Pacer
+from quadrivio_sim.pacing import LoopHold, Pacer
 
 
 def run(pacer, steps, dt, cost, stall_at=None, stall=0.0):
@@ -57,3 +57,59 @@ def test_as_fast_as_possible_never_waits():
 def test_bad_parameters_are_named(rtf, lag):
     with pytest.raises(ValueError, match="real_time_factor|max_lag"):
         Pacer(rtf, lag)
+
+
+class _Link:
+    """A fake wall clock and PLC link: ``serve(timeout)`` advances the wall clock by the
+    timeout and delivers a fresh setpoint at ``arrives`` (wall s; None: never)."""
+
+    def __init__(self, sim_t, fresh_since, arrives=None, driving=True):
+        self.wall, self.sim_t, self.fresh_since, self.arrives, self.driving = 0.0, sim_t, fresh_since, arrives, driving
+        self.served = 0
+
+    def serve(self, timeout):
+        self.served += 1
+        self.wall += timeout
+        if self.arrives is not None and self.wall >= self.arrives:
+            self.fresh_since = self.sim_t
+
+    def wait(self, hold):
+        return hold.wait(self.sim_t, lambda: self.fresh_since, lambda: self.driving, self.serve, lambda: self.wall)
+
+
+def test_loop_hold_waits_for_a_late_client_then_time_runs_on():
+    hold = LoopHold(lag=0.1, budget=0.5)
+    assert not hold.due(10.0, 9.95, True)  # setpoints 50 ms old: step
+    assert hold.due(10.0, 9.85, True)  # 150 ms old: wait
+    link = _Link(10.0, 9.85, arrives=0.12)
+    waited = link.wait(hold)
+    assert 0.12 <= waited < 0.13 and link.fresh_since == 10.0
+    assert not hold.due(10.0, link.fresh_since, True)
+    assert (hold.holds, hold.given_up) == (1, 0) and hold.held == pytest.approx(waited)
+
+
+def test_loop_hold_gives_up_once_on_a_frozen_client_so_the_watchdog_brakes():
+    hold = LoopHold(lag=0.1, budget=0.5)
+    link = _Link(10.0, 9.85, arrives=None)
+    assert link.wait(hold) == pytest.approx(0.5, abs=0.006)
+    assert hold.given_up == 1
+    # The same stall is not waited for again: sim time runs on to the watchdog (0.2 s)
+    for t in (10.01, 10.1, 10.3):
+        assert not hold.due(t, 9.85, True)
+    # A later stall, after the client came back, is waited for again
+    assert hold.due(20.0, 19.8, True)
+
+
+def test_loop_hold_never_waits_when_the_plc_does_not_drive_or_when_off():
+    assert not LoopHold(0.1, 0.5).due(10.0, 0.0, False)  # SAFE, HALT: nothing to keep fresh
+    assert not LoopHold(0.0, 0.5).due(10.0, 0.0, True)  # factor 1: the world does not wait
+    assert not LoopHold(0.1, 0.0).due(10.0, 0.0, True)
+    link = _Link(10.0, 9.0, arrives=None, driving=True)
+    hold = LoopHold(0.1, 0.5)
+
+    def serve(timeout):  # the PLC brakes on its own (a mode request) during the wait
+        link.serve(timeout)
+        link.driving = False
+    assert hold.wait(10.0, lambda: link.fresh_since, lambda: link.driving, serve, lambda: link.wall) < 0.01
+    with pytest.raises(ValueError, match="loop hold"):
+        LoopHold(-1.0, 0.5)

@@ -12,6 +12,8 @@ Gazebo behaves the same way: it sleeps when ahead and never races to recover los
 
 from __future__ import annotations
 
+from typing import Callable, Optional
+
 
 class Pacer:
     def __init__(self, real_time_factor: float, max_lag: float) -> None:
@@ -43,3 +45,56 @@ class Pacer:
             self.drops += 1
             self.anchor(sim_t, wall)
         return 0.0
+
+
+class LoopHold:
+    """Past the factor the closed loop sustains, wait for it instead of driving on.
+
+    At a factor above 1 a stall of the stack's processes that lasts 100 ms of wall time
+    (the 2 cores both busy, a slow update) is 400 ms of sim time at factor 4: the follower
+    sends no setpoint for twice the emulated PLC's 200 ms watchdog, the PLC brakes, and
+    the run fails on an artefact of the speed-up, not of the stack (bench_endurance: a
+    10-minute figure eight at factor 4 braked at 511 s and aborted). At factor 1 the
+    simulator stands for the world, which does not wait, and a stall is the stack's own
+    fault. So, at other factors, before each step: when the PLC drives (``driving``) and
+    the setpoints it depends on are older than ``lag`` sim seconds (``fresh_since``, the
+    watchdog's own reference), the simulator serves the PLC link without stepping until a
+    fresh setpoint arrives, for at most ``budget`` wall seconds per stall. A client that
+    is gone or frozen costs that budget once: then the stall is given up, time runs on and
+    the watchdog brakes as it would at factor 1 (never driving on without setpoints)."""
+
+    def __init__(self, lag: float, budget: float) -> None:
+        if lag < 0.0 or budget < 0.0:
+            raise ValueError(f"loop hold: lag and budget must be >= 0, got {lag}, {budget}")
+        self.lag, self.budget = lag, budget
+        self.holds = 0  # stalls waited for
+        self.held = 0.0  # [s wall] in all
+        self.given_up = 0  # stalls whose budget ran out
+        self._given_up_at: Optional[float] = None  # fresh_since of the stall given up
+
+    @property
+    def enabled(self) -> bool:
+        return self.lag > 0.0 and self.budget > 0.0
+
+    def due(self, sim_t: float, fresh_since: float, driving: bool) -> bool:
+        """Whether to wait before the step that starts at ``sim_t`` [s sim]."""
+        return (self.enabled and driving and sim_t - fresh_since > self.lag
+                and self._given_up_at != fresh_since)
+
+    def wait(self, sim_t: float, fresh: Callable[[], float], driving: Callable[[], bool],
+             serve: Callable[[float], None], now: Callable[[], float]) -> float:
+        """Serve (``serve(timeout)``: the PLC link) until the setpoints are fresh again,
+        the PLC stops driving, or the budget is spent; the wall seconds waited."""
+        start = now()
+        since = fresh()
+        self.holds += 1
+        while now() - start < self.budget:
+            serve(min(0.005, self.budget - (now() - start)))
+            if not self.due(sim_t, fresh(), driving()):
+                break
+        else:
+            self.given_up += 1
+            self._given_up_at = since
+        waited = now() - start
+        self.held += waited
+        return waited

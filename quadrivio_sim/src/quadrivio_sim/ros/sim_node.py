@@ -7,6 +7,12 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
 * ``~max_lag`` (float, 0.05): sim seconds the simulator may fall behind its real-time
   schedule and make up by stepping without waiting; a longer stall is dropped rather than
   raced through (see ``pacing.py``: a burst of sim time starves wall-clock nodes).
+* ``~loop_hold`` (float, 0.1) and ``~loop_hold_budget`` (float, 0.5): at a factor other
+  than 1, when the setpoints the PLC drives on are older than ``loop_hold`` sim seconds,
+  serve the PLC link without stepping until a fresh one arrives, for at most
+  ``loop_hold_budget`` wall seconds per stall (then time runs on and the PLC's watchdog
+  brakes): the simulator slows to what the closed loop sustains instead of letting it act
+  on stale data (``pacing.LoopHold``). At factor 1, and in lockstep, never.
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
@@ -65,8 +71,8 @@ from .clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
 from ..actuators import ActuatorParams
 from ..paths import package_file
-from ..pacing import Pacer
-from ..plc_emulator import PlcServer
+from ..pacing import LoopHold, Pacer
+from ..plc_emulator import DRIVING, PlcServer
 from ..script import load_script
 from ..simulator import SimParams, Simulator
 
@@ -76,6 +82,11 @@ class NodeParams:
     real_time_factor: float = param(1.0, lo=0.0, hi=1000.0, doc="sim s per wall s; 0: as fast as possible")
     max_lag: float = param(0.05, lo=0.0, hi=10.0, unit="s",
                            doc="sim time a late simulator may make up by not waiting; a longer stall is dropped")
+    loop_hold: float = param(0.1, lo=0.0, hi=10.0, unit="s",
+                             doc="at a factor other than 1: wait for the PLC client when the setpoints the PLC "
+                                 "drives on are older than this (sim s; below the PLC watchdog); 0: never")
+    loop_hold_budget: float = param(0.5, lo=0.0, hi=60.0, unit="s",
+                                    doc="wall seconds one such wait may last before time runs on (the watchdog brakes)")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
@@ -135,6 +146,8 @@ class SimNode:
         self.debug_sp: Optional[Setpoint] = None
         self.behind_warned = 0.0
         self.pacer = Pacer(self.rtf, self.np.max_lag)
+        # At factor 1 the simulator is the world, which does not wait (pacing.LoopHold)
+        self.hold = LoopHold(self.np.loop_hold if self.rtf != 1.0 else 0.0, self.np.loop_hold_budget)
         self.stopped = False
         self.stop_event = threading.Event()
         self.lockstep: Optional[LockstepDriver] = None
@@ -277,6 +290,12 @@ class SimNode:
                 self.server.poll(0.02)
                 self._drain_plc_events()
                 continue
+            if self.lockstep is None and self._loop_late():
+                self.hold.wait(self.sim.t, lambda: self.sim.plc.fresh_since, self._driving, self.server.poll,
+                               time.monotonic)
+                self._drain_plc_events()
+                self._anchor()  # the wait is not made up by a burst of steps
+                continue
             self._step_once()
             if self.np.run_until and self.sim.t >= self.np.run_until - 1e-9 and not self.stopped:
                 rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
@@ -298,6 +317,12 @@ class SimNode:
                 self.diag.update()
         self.server.close()
         self.sim.close()
+
+    def _driving(self) -> bool:
+        return self.server.connected and self.sim.plc.mode in DRIVING
+
+    def _loop_late(self) -> bool:
+        return self.hold.due(self.sim.t, self.sim.plc.fresh_since, self._driving())
 
     def _poll_until(self, deadline: float) -> None:
         """Serve the PLC port until the wall-clock ``deadline`` of the next step. A frame
@@ -376,6 +401,9 @@ class SimNode:
         stat.add("requested real-time factor", f"{self.rtf:g}")
         stat.add("achieved real-time factor", f"{self.wall_rtf:.2f}")
         stat.add("sim time dropped behind schedule [s]", f"{self.pacer.dropped:.3f} in {self.pacer.drops} stalls")
+        if self.hold.enabled:
+            stat.add("waits for the PLC client's setpoints", f"{self.hold.holds} ({self.hold.held:.2f} wall s), "
+                     f"{self.hold.given_up} given up (the watchdog's to brake)")
         ls = self.lockstep
         if ls is not None:
             if ls.left or ls.errors:
