@@ -57,26 +57,34 @@ def _cpu(pid: str) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK  # utime, stime (fields 14, 15)
 
 
+def run_processes():
+    """``(pid, name)`` of every process of the run that :func:`_name` names, but this one."""
+    me = os.getpid()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == me:
+            continue
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                name = _name(fh.read().replace(b"\0", b" ").decode(errors="replace"))
+        except OSError:
+            continue  # gone
+        if name:
+            yield pid, name
+
+
 def sample(stop: threading.Event, seen: Dict[str, tuple], running: threading.Event,
            base: Dict[str, float]) -> None:
     """Keep each run process's latest CPU time, ``seen``: pid -> (name, seconds), and in
     ``base`` each one's CPU time when the run started (start-up is not the loop's cost)."""
-    me = os.getpid()
     while not stop.is_set():
         snap = running.is_set() and not base
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit() or int(pid) == me:
-                continue
+        for pid, name in run_processes():
             try:
-                with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                    args = fh.read().replace(b"\0", b" ").decode(errors="replace")
-                name = _name(args)
-                if name:
-                    seen[pid] = (name, _cpu(pid))
-                    if snap:
-                        base[pid] = seen[pid][1]
+                seen[pid] = (name, _cpu(pid))
             except (OSError, IndexError, ValueError):
                 continue
+            if snap:
+                base[pid] = seen[pid][1]
         if snap and not base:
             base["-"] = 0.0
         stop.wait(0.25)

@@ -33,7 +33,7 @@ import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from bench_cpu import _name  # noqa: E402
+from bench_cpu import run_processes  # noqa: E402
 from common import RESULTS, machine, write_result  # noqa: E402
 
 SIM_S = float(os.environ.get("ENDURANCE_SIM_S", "600"))
@@ -102,23 +102,17 @@ def _rss_mb(pid: str) -> float:
 
 def sample_memory(stop: threading.Event, running: threading.Event, series: Dict[str, List[Tuple[float, float]]]):
     """``series``: process name -> [(wall s since the run started, resident MB)]."""
-    me = os.getpid()
     t0 = None
     while not stop.is_set():
         if running.is_set():
             t0 = time.monotonic() if t0 is None else t0
             now = time.monotonic() - t0
             per: Dict[str, float] = {}
-            for pid in os.listdir("/proc"):
-                if not pid.isdigit() or int(pid) == me:
-                    continue
+            for pid, name in run_processes():
                 try:
-                    with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                        name = _name(fh.read().replace(b"\0", b" ").decode(errors="replace"))
-                    if name:
-                        per[name] = per.get(name, 0.0) + _rss_mb(pid)
+                    per[name] = per.get(name, 0.0) + _rss_mb(pid)
                 except (OSError, IndexError, ValueError):
-                    continue
+                    continue  # gone
             for name, mb in per.items():
                 series.setdefault(name, []).append((now, mb))
         stop.wait(1.0)

@@ -322,7 +322,8 @@ class SimNode:
         return self.server.connected and self.sim.plc.mode in DRIVING
 
     def _loop_late(self) -> bool:
-        return self.hold.due(self.sim.t, self.sim.plc.fresh_since, self._driving())
+        # Every step: at factor 1 (the hold off) read nothing else
+        return self.hold.enabled and self.hold.due(self.sim.t, self.sim.plc.fresh_since, self._driving())
 
     def _poll_until(self, deadline: float) -> None:
         """Serve the PLC port until the wall-clock ``deadline`` of the next step. A frame
