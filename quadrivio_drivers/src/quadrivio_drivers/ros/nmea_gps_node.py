@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from quadrivio_description.config import param
+from quadrivio_description.ros import diagnostics
 from quadrivio_description.ros.params import node_params
 from quadrivio_description.ros.timer import guarded_timer
 
@@ -51,7 +51,7 @@ class NmeaGpsNode:
         self.last_error = ""
         self.last_status = None
         self.last_fix_wall = None
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID(f"NMEA GPS {self.source}")
         self.diag.add("GPS", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")

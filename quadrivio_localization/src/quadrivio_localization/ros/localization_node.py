@@ -24,7 +24,6 @@ from dataclasses import dataclass
 import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
@@ -32,7 +31,7 @@ from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
@@ -74,7 +73,7 @@ class LocalizationNode:
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=200)
         rospy.Subscriber("imu/mag", MagneticField, self._on_mag, queue_size=100)
         rospy.Subscriber("gps/fix", NavSatFix, self._on_gps, queue_size=20)
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID("localization")
         self.diag.add("localization", self._diagnose)
         guarded_timer(1.0 / self.p.rate, self._tick, "localization update")

@@ -20,10 +20,9 @@ from typing import Optional
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import fatal, node_params, with_scenario
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
@@ -46,7 +45,7 @@ class ExcitationNode:
         self.pub = rospy.Publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         on_clock_jump(self._on_clock_jump)
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID("excitation")
         self.diag.add("excitation", self._diagnose)
         guarded_timer(1.0 / self.p.rate, self._tick, "excitation cycle")

@@ -31,11 +31,10 @@ from typing import Optional
 import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint
@@ -62,7 +61,7 @@ class FollowerNode:
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         guarded_timer(1.0 / self.p.rate, self._tick, "follower cycle")
         on_clock_jump(self._on_clock_jump)
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID("follower")
         self.diag.add("follower", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")

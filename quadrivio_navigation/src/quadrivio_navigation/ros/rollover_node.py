@@ -19,12 +19,11 @@ from dataclasses import dataclass
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from sensor_msgs.msg import Imu
 
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
@@ -58,7 +57,7 @@ class RolloverNode:
         self.last = None
         self.level = OK
         self.stopping = threading.Lock()
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID("rollover monitor")
         self.diag.add("roll-over risk", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")

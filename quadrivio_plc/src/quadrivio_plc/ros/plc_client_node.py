@@ -29,10 +29,9 @@ from typing import Dict
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 
 from quadrivio_description.config import param
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import node_params, private_params, split_params
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
@@ -83,7 +82,7 @@ class PlcClientNode:
         rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint, P.SOURCE_MANUAL, queue_size=10)
         rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
         rospy.Service("~set_mode", SetMode, self._srv_set_mode)
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID(f"PLC {self.p.host}:{self.p.port}")
         self.diag.add("PLC link", self._diagnose)
         self.io = threading.Thread(target=self._io_loop, name="plc_io", daemon=True)

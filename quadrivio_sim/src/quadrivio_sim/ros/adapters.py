@@ -49,11 +49,10 @@ from typing import Any, Callable, Deque, Dict, List, Tuple
 import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
-from quadrivio_description.ros import lockstep
+from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
@@ -158,7 +157,7 @@ class Host:
 
     def __init__(self) -> None:
         self.outputs: List[DelayedOutput] = []
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID(rospy.get_name())
 
     def output(self, slot: Slot, build: Callable[[], Latency], release_period: float) -> DelayedOutput:

@@ -50,13 +50,13 @@ from typing import Callable, Optional
 import rospy
 import tf2_ros
 from diagnostic_msgs.msg import DiagnosticStatus
-from diagnostic_updater import Updater
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, Imu, JointState, LaserScan, MagneticField
 from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param
+from quadrivio_description.ros import diagnostics
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, site_params,
                                              split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
@@ -187,7 +187,7 @@ class SimNode:
             rospy.Subscriber("~debug/setpoint", Setpoint, self._on_debug_setpoint, queue_size=10)
             rospy.logwarn("debug setpoints enabled: ~debug/setpoint drives the PLC in AUTO, bypassing the TCP link")
 
-        self.diag = Updater()
+        self.diag = diagnostics.updater()
         self.diag.setHardwareID("quadrivio_sim")
         self.diag.add("simulator", self._diag_sim)
         self.diag.add("emulated PLC", self._diag_plc)
