@@ -31,9 +31,10 @@ def resting_script(seconds):
 
 
 def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
-        script=wandering_script):
+        script=wandering_script, mag_delay=0.0):
     """Returns (errors array of [t, position error, heading error, heading sigma, error east, error north,
-    covariance xx, xy, yy], localizer, last estimate)."""
+    covariance xx, xy, yy], localizer, last estimate). ``mag_delay``: the magnetometer's
+    readings reach the smoother this many seconds after their stamp."""
     v, site = load_vehicle(), load_site()
     frame = site.local_frame()
     sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -46,6 +47,7 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
     mag = MagNoise(load_dataclass(MagAdapterParams, package_file("config", "mag.yaml")).noise, rng)
     loc = Localizer(params or LocalizerParams(), v, site)
     errors, truth, est = [], {}, None
+    mags = []  # (stamp, reading) not delivered yet
     while sim.t < seconds - 1e-9:
         for name, s in sim.step():
             if name == "ground_truth":
@@ -56,7 +58,7 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                 f, w = imu.apply(s.specific_force, s.angular_rate)
                 loc.add_imu(s.stamp, tuple(f), (w[0], w[1], w[2] + gyro_bias))
             elif name == "mag":
-                loc.add_mag(s.stamp, tuple(mag.apply(s.field)))
+                mags.append((s.stamp, tuple(mag.apply(s.field))))
             elif name == "gps":
                 r = gps.apply(s.stamp, s.position, s.velocity)
                 if r.position is None:
@@ -64,6 +66,8 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                 else:
                     lat, lon, alt = frame.enu_to_lla(*r.position)
                     loc.add_gps(s.stamp, lat, lon, alt, r.variances[0], r.variances[1], r.status)
+        while mags and mags[0][0] + mag_delay <= sim.t + 1e-9:
+            loc.add_mag(*mags.pop(0))
         if sim.steps % 5 == 0:
             e = loc.update(sim.t)
             if e is not None:

@@ -207,6 +207,7 @@ class LocalizationNode:
                            *((f"GPS fixes not used: {r}", n) for r, n in self.loc.gate.counts.items()),
                            ("magnetometer factors", c.mag_used),
                            ("magnetometer slots skipped at rest", c.mag_skipped_at_rest),
+                           ("magnetometer readings later than max_wait (dropped)", c.mag_late),
                            ("intervals without odometry", c.intervals_without_odometry),
                            ("intervals without gyro", c.intervals_without_gyro),
                            ("intervals with the wheel speed ignored (read 0 while moving)",
