@@ -4,8 +4,12 @@ stack_rtf: the paper's figure eight (scenarios/figure_eight.yaml, its seed) clos
 the whole stack (simulator, adapters, PLC link, smoother, predictor, follower), run with
 ``rosrun quadrivio experiment`` at real-time factor 1, then at increasing factors. The
 highest factor whose run completes with its tracking metrics (xte_rmse_m, xte_max_m)
-within 10 % of the factor-1 run's is ``stack_rtf`` (a stack that cannot keep up falls
-behind the simulated vehicle: the follower acts on stale poses or aborts).
+within 10 % of the factor-1 run's, at an achieved factor of at least 95 % of the one asked
+for, is ``stack_rtf`` (a stack that cannot keep up falls behind the simulated vehicle:
+the follower acts on stale poses or aborts). Past that factor the simulator slows down for
+the loop (sim_node ``~loop_hold``, ``~stale_slowdown``): the tracking holds and the
+achieved factor falls short of the one asked for, so every factor is run and the highest
+achieved factor with the tracking kept is ``stack_rtf_achieved``.
 
 smoother_update_p99_ms, smoother_cpu_frac: the factor-1 run's sensor topics fed to the
 smoother offline exactly as ``replay`` does (same order, 20 Hz updates on the bag's
@@ -41,18 +45,27 @@ def stack_rtf() -> dict:
           ", ".join(f"{k} {ref.get(k)}" for k in KEYS), flush=True)
     if not ref["completed"]:
         raise SystemExit("[bench stack] the factor-1 run did not complete: no reference")
-    best = 1.0
+    best, best_achieved, sustained = 1.0, float(ref.get("rtf") or 1.0), True
     for f in FACTORS[1:]:
         m = run(f)
         runs[f] = m
-        ok = m["completed"] and all(m[k] is not None and m[k] <= 1.1 * ref[k] for k in KEYS)
-        print(f"[bench stack] factor {f:g}: completed {m['completed']}, achieved rtf {m.get('rtf')}, " +
-              ", ".join(f"{k} {m.get(k)}" for k in KEYS) + (" ok" if ok else " -> beyond the stack"), flush=True)
-        if not ok:
-            break
-        best = f
-    result = {"stack_rtf": best, "scenario": f"{SCENARIO} (its seed), factors tried {sorted(runs)}",
-              "criterion": "completed and xte_rmse_m, xte_max_m within 10 % of the factor-1 run",
+        tracks = m["completed"] and all(m[k] is not None and m[k] <= 1.1 * ref[k] for k in KEYS)
+        achieved = float(m.get("rtf") or 0.0)
+        keeps_up = achieved >= 0.95 * f
+        print(f"[bench stack] factor {f:g}: completed {m['completed']}, achieved rtf {achieved:.2f}, " +
+              ", ".join(f"{k} {m.get(k)}" for k in KEYS) +
+              (" ok" if tracks and keeps_up else " tracking kept, factor not sustained" if tracks
+               else " -> beyond the stack"), flush=True)
+        if tracks:
+            best_achieved = max(best_achieved, achieved)
+        sustained = sustained and tracks and keeps_up
+        if sustained:
+            best = f
+    result = {"stack_rtf": best, "stack_rtf_achieved": best_achieved,
+              "scenario": f"{SCENARIO} (its seed), factors tried {sorted(runs)}",
+              "criterion": "completed, xte_rmse_m and xte_max_m within 10 % of the factor-1 run, achieved factor "
+                           ">= 95 % of the one asked for (stack_rtf_achieved: the highest achieved factor of a run "
+                           "that kept the tracking)",
               "machine": machine()}
     for f, m in runs.items():
         for k in KEYS + ("loc_rmse_m", "rtf", "wall_s"):

@@ -3,6 +3,7 @@ conventions of the message types. No master needed."""
 import math
 
 import pytest
+import rospy
 
 from quadrivio_sim.ros import converters as C
 from quadrivio_sim.sensors import ImageSample, ImuSample, MagSample, ScanSample
@@ -41,3 +42,32 @@ def test_the_right_camera_carries_the_baseline_in_its_projection():
     assert img.step == 12 and img.encoding == "rgb8"
     assert info.P[3] == pytest.approx(-300.0 * 0.12)  # Tx = -fx * baseline (REP-104)
     assert C.image(s, baseline=0.12, right=False)[1].P[3] == 0.0
+
+
+def test_header_stamp_is_read_from_the_serialised_message_of_any_stamped_type():
+    from io import BytesIO
+
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Odometry
+
+    for msg in (Odometry(), PoseStamped()):
+        msg.header.seq = 77
+        msg.header.stamp = rospy.Time(12, 345678901)
+        msg.header.frame_id = "a_frame_of_another_length"
+        buff = BytesIO()
+        msg.serialize(buff)
+        assert C.header_stamp(buff.getvalue()) == (12, 345678901)
+        assert C.starts_with_header(msg._full_text)
+    with pytest.raises(ValueError, match="12 bytes"):
+        C.header_stamp(b"\x00" * 11)
+
+
+def test_only_definitions_whose_first_field_is_a_header_count_as_stamped():
+    from geometry_msgs.msg import Pose
+    from std_msgs.msg import Float64
+
+    assert C.starts_with_header("# a comment first\n\nstd_msgs/Header header  # the stamp\nfloat64 x\n")
+    assert not C.starts_with_header(Float64._full_text)
+    assert not C.starts_with_header(Pose._full_text)
+    assert not C.starts_with_header("float64 x\nHeader header\n")  # a header, but not first: the stamp is elsewhere
+    assert not C.starts_with_header("")

@@ -1,7 +1,7 @@
 """Pacer: waits when ahead, makes up a short lag, drops a long one."""
 import pytest
 
-from quadrivio_sim.pacing import LoopHold, Pacer
+from quadrivio_sim.pacing import LoopHold, Pacer, StaleSlowdown
 
 
 def run(pacer, steps, dt, cost, stall_at=None, stall=0.0):
@@ -113,3 +113,66 @@ def test_loop_hold_never_waits_when_the_plc_does_not_drive_or_when_off():
     assert hold.wait(10.0, lambda: link.fresh_since, lambda: link.driving, serve, lambda: link.wall) < 0.01
     with pytest.raises(ValueError, match="loop hold"):
         LoopHold(-1.0, 0.5)
+
+
+WATCH = {"localization/odom": 0.2, "localization/predicted": 0.1}
+
+
+def test_stale_slowdown_runs_at_real_time_until_every_stream_is_fresh_again():
+    sd = StaleSlowdown(WATCH, budget=2.0)
+    sd.seen("localization/odom", 9.9)
+    sd.seen("localization/predicted", 9.98)
+    assert sd.factor(5.0, 10.0, True, wall=0.0) == 5.0  # 0.1 and 0.02 s old: fresh
+    sd.seen("localization/odom", 9.85)  # an older stamp arriving late changes nothing
+    assert sd.factor(5.0, 10.15, True, wall=0.01) == 1.0  # odom 0.25 s old
+    assert sd.slow and sd.stale(10.15) == ["localization/odom", "localization/predicted"]
+    assert sd.factor(5.0, 10.2, True, wall=0.06) == 1.0
+    sd.seen("localization/odom", 10.15)
+    sd.seen("localization/predicted", 10.2)
+    assert sd.factor(5.0, 10.21, True, wall=0.07) == 5.0 and not sd.slow
+    assert sd.episodes == {"localization/odom": 1, "localization/predicted": 1}
+    assert sd.slow_wall == pytest.approx(0.06) and sd.given_up == 0
+
+
+def test_stale_slowdown_as_fast_as_possible_also_slows_to_real_time():
+    sd = StaleSlowdown(WATCH, budget=2.0)
+    sd.seen("localization/odom", 0.0)
+    assert sd.factor(0.0, 1.0, True, wall=0.0) == 1.0
+
+
+def test_stale_slowdown_watches_a_stream_only_from_its_first_message_and_while_driving():
+    sd = StaleSlowdown(WATCH, budget=2.0)
+    assert sd.factor(5.0, 100.0, True, wall=0.0) == 5.0  # no localization running
+    sd.seen("localization/predicted", 10.0)
+    assert sd.factor(5.0, 100.0, False, wall=0.0) == 5.0  # the PLC does not drive: nothing acts on it
+    assert sd.factor(5.0, 100.0, True, wall=0.0) == 1.0
+
+
+def test_stale_slowdown_never_at_or_below_real_time_or_when_off():
+    for rtf in (1.0, 0.5):
+        sd = StaleSlowdown(WATCH, budget=2.0)
+        sd.seen("localization/odom", 0.0)
+        assert sd.factor(rtf, 100.0, True, wall=0.0) == rtf
+    for off in (StaleSlowdown({}, 2.0), StaleSlowdown(WATCH, 0.0), StaleSlowdown({"a": 0.0}, 2.0)):
+        off.seen("a", 0.0)
+        off.seen("localization/odom", 0.0)
+        assert not off.enabled and off.factor(5.0, 100.0, True, wall=0.0) == 5.0
+
+
+def test_stale_slowdown_gives_up_once_on_a_stream_that_stopped():
+    sd = StaleSlowdown(WATCH, budget=2.0)
+    sd.seen("localization/odom", 10.0)
+    assert sd.factor(5.0, 10.3, True, wall=0.0) == 1.0
+    assert sd.factor(5.0, 11.0, True, wall=1.9) == 1.0
+    assert sd.factor(5.0, 12.1, True, wall=2.1) == 5.0  # the node died: the run goes on at its factor
+    assert sd.given_up == 1 and not sd.slow and sd.slow_wall == pytest.approx(2.1)
+    assert sd.factor(5.0, 50.0, True, wall=3.0) == 5.0  # the same silence is not waited for again
+    sd.seen("localization/odom", 60.0)  # back (a restart): watched again
+    assert sd.factor(5.0, 60.5, True, wall=4.0) == 1.0
+
+
+def test_stale_slowdown_bad_parameters_are_named():
+    with pytest.raises(ValueError, match="stale slowdown"):
+        StaleSlowdown({"localization/odom": -0.1}, 2.0)
+    with pytest.raises(ValueError, match="stale slowdown"):
+        StaleSlowdown(WATCH, float("nan"))

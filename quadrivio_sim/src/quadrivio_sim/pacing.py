@@ -12,7 +12,8 @@ Gazebo behaves the same way: it sleeps when ahead and never races to recover los
 
 from __future__ import annotations
 
-from typing import Callable, Optional
+import math
+from typing import Callable, Dict, List, Optional
 
 
 class Pacer:
@@ -98,3 +99,86 @@ class LoopHold:
         waited = now() - start
         self.held += waited
         return waited
+
+
+class StaleSlowdown:
+    """Past the factor the stack sustains, run at real time while its estimate is stale.
+
+    The stack's own deadlines are in sim time, sized for real time: the smoother creates a
+    keyframe without odometry when the wheel speed has not arrived ``max_wait`` (0.25 s)
+    after the keyframe's time; the predictor stops predicting from an estimate older than
+    ``max_age``. At factor 5 with both cores busy, a process that waits 50 ms of wall time
+    for a core misses 250 ms of sim time: the figure eight at factor 5 had up to 183
+    keyframes without odometry in one run and 0 at factor 1, and tracked 0.4-1.7 m where
+    factor 1 tracks 0.39. Stopping the clock (what :class:`LoopHold` does for the
+    setpoints) would not help here, because these nodes work on sim-time timers: a
+    keyframe waiting for its odometry is retried on the next tick, and a stopped clock
+    has none. So while the newest message of a watched stream (``max_age``: stream ->
+    sim seconds) is older than its limit, the simulator runs at real time, where the
+    stack keeps its deadlines by design; when every stream is fresh again, it returns to
+    its factor. A stream is watched from its first message (no localization running, no
+    slowdown), only while the PLC drives, and for at most ``budget`` wall seconds per
+    episode: a node that died costs that once, then the run goes on at its factor with
+    the stack's own reaction to a lost estimate (the predictor stops, the follower stops,
+    the PLC brakes), as at factor 1."""
+
+    def __init__(self, max_age: Dict[str, float], budget: float) -> None:
+        bad = {k: v for k, v in max_age.items() if not v >= 0.0}
+        if bad or not budget >= 0.0:
+            raise ValueError(f"stale slowdown: every max age and the budget must be >= 0, got {max_age}, {budget}")
+        self.max_age = {k: float(v) for k, v in max_age.items() if v > 0.0}
+        self.budget = float(budget)
+        self.newest: Dict[str, float] = {}  # stream -> stamp of its newest message [s sim]
+        self.episodes: Dict[str, int] = {k: 0 for k in self.max_age}  # slowdowns started by each stream
+        self.slow_wall = 0.0  # [s wall] at real time in all
+        self.given_up = 0  # episodes whose budget ran out
+        self._since: Optional[float] = None  # wall time the current episode began
+        self._given_up_at: Dict[str, float] = {}  # stream -> its newest stamp when given up
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.max_age) and self.budget > 0.0
+
+    @property
+    def slow(self) -> bool:
+        return self._since is not None
+
+    def seen(self, stream: str, stamp: float) -> None:
+        """A message of ``stream`` stamped ``stamp`` [s sim] arrived (any thread)."""
+        if stamp > self.newest.get(stream, -math.inf):
+            self.newest[stream] = stamp
+
+    def stale(self, sim_t: float) -> List[str]:
+        """The streams whose newest message is older than their limit at ``sim_t``."""
+        out = []
+        for name, age in self.max_age.items():
+            t = self.newest.get(name)
+            if t is not None and sim_t - t > age and self._given_up_at.get(name) != t:
+                out.append(name)
+        return out
+
+    def factor(self, rtf: float, sim_t: float, driving: bool, wall: float) -> float:
+        """The factor for the next step: ``rtf``, or real time (1) while a stream is stale
+        (``rtf`` 0 means as fast as possible, so real time is slower too)."""
+        if not self.enabled or not (rtf == 0.0 or rtf > 1.0):
+            return rtf
+        stale = self.stale(sim_t) if driving else []
+        if not stale:
+            self._end(wall)
+            return rtf
+        if self._since is None:
+            self._since = wall
+            for name in stale:
+                self.episodes[name] += 1
+        elif wall - self._since > self.budget:
+            self.given_up += 1
+            for name in stale:
+                self._given_up_at[name] = self.newest[name]
+            self._end(wall)
+            return rtf
+        return 1.0
+
+    def _end(self, wall: float) -> None:
+        if self._since is not None:
+            self.slow_wall += wall - self._since
+            self._since = None

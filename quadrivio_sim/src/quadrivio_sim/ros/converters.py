@@ -4,6 +4,7 @@ what these return; tests call them on samples without a master."""
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 from typing import List, Tuple
 
@@ -30,6 +31,24 @@ class Frames:
 
 def stamp(t: float) -> rospy.Time:
     return rospy.Time.from_sec(t)
+
+
+def starts_with_header(definition: str) -> bool:
+    """Whether a message definition (a connection header's ``message_definition``) has a
+    std_msgs/Header as its first field, so that :func:`header_stamp` reads its stamp."""
+    for line in definition.splitlines():
+        line = line.split("#", 1)[0].split()
+        if line:
+            return line[0] in ("Header", "std_msgs/Header")
+    return False
+
+
+def header_stamp(buff: bytes) -> Tuple[int, int]:
+    """``(secs, nsecs)`` of a serialised message whose first field is a std_msgs/Header
+    (uint32 seq, then the stamp's two uint32, little-endian), without deserialising it."""
+    if len(buff) < 12:
+        raise ValueError(f"a stamped message has at least 12 bytes, this one {len(buff)}")
+    return struct.unpack_from("<II", buff, 4)
 
 
 def ground_truth(s: GroundTruth, f: Frames) -> Tuple[Odometry, TransformStamped]:

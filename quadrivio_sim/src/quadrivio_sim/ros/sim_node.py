@@ -13,6 +13,12 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   ``loop_hold_budget`` wall seconds per stall (then time runs on and the PLC's watchdog
   brakes): the simulator slows to what the closed loop sustains instead of letting it act
   on stale data (``pacing.LoopHold``). At factor 1, and in lockstep, never.
+* ``~stale_slowdown`` (dict, ``{localization/odom: 0.2, localization/predicted: 0.1}``)
+  and ``~stale_slowdown_budget`` (float, 2.0): above factor 1 (or as fast as possible),
+  while the PLC drives and the newest message of one of these stamped topics is older
+  than its limit (sim s), run at real time, where the stack keeps its sim-time deadlines
+  (the smoother's ``max_wait``), until every one is fresh again; at most the budget (wall
+  s) per episode (``pacing.StaleSlowdown``). ``{}``: never.
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
@@ -45,7 +51,7 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Callable, Optional
+from typing import Callable, Dict, Optional
 
 import rospy
 import tf2_ros
@@ -71,7 +77,7 @@ from .clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
 from ..actuators import ActuatorParams
 from ..paths import package_file
-from ..pacing import LoopHold, Pacer
+from ..pacing import LoopHold, Pacer, StaleSlowdown
 from ..plc_emulator import DRIVING, PlcServer
 from ..script import load_script
 from ..simulator import SimParams, Simulator
@@ -87,6 +93,12 @@ class NodeParams:
                                  "drives on are older than this (sim s; below the PLC watchdog); 0: never")
     loop_hold_budget: float = param(0.5, lo=0.0, hi=60.0, unit="s",
                                     doc="wall seconds one such wait may last before time runs on (the watchdog brakes)")
+    stale_slowdown: Dict[str, float] = param({"localization/odom": 0.2, "localization/predicted": 0.1}, lo=0.0,
+                                             hi=60.0, unit="s",
+                                             doc="above factor 1: run at real time while the newest message of one "
+                                                 "of these stamped topics is older than this (sim s); {}: never")
+    stale_slowdown_budget: float = param(2.0, lo=0.0, hi=600.0, unit="s",
+                                         doc="wall seconds one such slowdown may last (a node that died)")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
@@ -155,6 +167,13 @@ class SimNode:
             if self.np.clock_every != 1:
                 fatal(f"lockstep needs ~clock_every = 1 (a round per /clock tick), not {self.np.clock_every}")
             self.lockstep = LockstepDriver(self.server, lambda: self.stop_event.is_set() or rospy.is_shutdown())
+        # Above factor 1 the stack's sim-time deadlines shrink in wall time (pacing.StaleSlowdown);
+        # lockstep waits for the loop anyway
+        fast = self.lockstep is None and (self.rtf == 0.0 or self.rtf > 1.0)
+        self.slowdown = StaleSlowdown(self.np.stale_slowdown if fast else {}, self.np.stale_slowdown_budget)
+        for topic in self.slowdown.max_age:
+            # Only the header's stamp is read, from the serialised message (no deserialisation)
+            rospy.Subscriber(topic, rospy.AnyMsg, self._on_watched, callback_args=topic, queue_size=1)
 
         with warnings.catch_warnings():
             # Synchronous on purpose: no writer thread per subscriber (each /clock tick would
@@ -264,6 +283,19 @@ class SimNode:
             return self.sim.t
         return StepResponse(self._run_in_loop(job, timeout=60.0 + req.steps * 0.01))
 
+    def _on_watched(self, msg: rospy.AnyMsg, topic: str) -> None:
+        header = getattr(msg, "_connection_header", None) or {}
+        if not C.starts_with_header(header.get("message_definition", "")):
+            rospy.logerr_throttle(10.0, "~stale_slowdown: %s is %s, not a stamped message (a Header first): "
+                                        "not watched", topic, header.get("type", "of an unknown type"))
+            return
+        try:
+            secs, nsecs = C.header_stamp(msg._buff)
+        except ValueError as exc:
+            rospy.logerr_throttle(10.0, "~stale_slowdown: %s on %s: not watched", exc, topic)
+            return
+        self.slowdown.seen(topic, secs + 1e-9 * nsecs)
+
     def _on_debug_setpoint(self, msg: Setpoint) -> None:
         with self.lock:
             self.debug_sp = msg
@@ -297,6 +329,8 @@ class SimNode:
                 self._anchor()  # the wait is not made up by a burst of steps
                 continue
             self._step_once()
+            if self.slowdown.enabled:
+                self._pace_for_the_loop()
             if self.np.run_until and self.sim.t >= self.np.run_until - 1e-9 and not self.stopped:
                 rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
                 self.paused = self.stopped = True
@@ -317,6 +351,12 @@ class SimNode:
                 self.diag.update()
         self.server.close()
         self.sim.close()
+
+    def _pace_for_the_loop(self) -> None:
+        f = self.slowdown.factor(self.rtf, self.sim.t, self._driving(), time.monotonic())
+        if f != self.pacer.rtf:
+            self.pacer.rtf = f
+            self._anchor()  # the new factor counts from now, no burst to catch up with the old
 
     def _driving(self) -> bool:
         return self.server.connected and self.sim.plc.mode in DRIVING
@@ -405,6 +445,10 @@ class SimNode:
         if self.hold.enabled:
             stat.add("waits for the PLC client's setpoints", f"{self.hold.holds} ({self.hold.held:.2f} wall s), "
                      f"{self.hold.given_up} given up (the watchdog's to brake)")
+        sd = self.slowdown
+        if sd.enabled:
+            stat.add("slowed to real time for a stale stream", ", ".join(f"{k} {v}" for k, v in sd.episodes.items()) +
+                     f" ({sd.slow_wall:.2f} wall s), {sd.given_up} given up")
         ls = self.lockstep
         if ls is not None:
             if ls.left or ls.errors:
