@@ -108,13 +108,14 @@ class StaleSlowdown:
     keyframe without odometry when the wheel speed has not arrived ``max_wait`` (0.25 s)
     after the keyframe's time; the predictor stops predicting from an estimate older than
     ``max_age``. At factor 5 with both cores busy, a process that waits 50 ms of wall time
-    for a core misses 250 ms of sim time: the figure eight at factor 5 had up to 183
-    keyframes without odometry in one run and 0 at factor 1, and tracked 0.4-1.7 m where
-    factor 1 tracks 0.39. Stopping the clock (what :class:`LoopHold` does for the
-    setpoints) would not help here, because these nodes work on sim-time timers: a
-    keyframe waiting for its odometry is retried on the next tick, and a stopped clock
-    has none. So while the newest message of a watched stream (``max_age``: stream ->
-    sim seconds) is older than its limit, the simulator runs at real time, where the
+    for a core misses 250 ms of sim time: the figure eight at factor 5 had 17-311
+    keyframes without odometry per run (0 at factor 1) and a cross-track maximum of
+    0.44-1.40 m where factor 1 tracks 0.385. Stopping the clock (what :class:`LoopHold`
+    does for the setpoints) would not help here, because these nodes work on sim-time
+    timers: a keyframe waiting for its odometry is retried on the next tick, and a
+    stopped clock has none. So while the newest message of a watched stream
+    (``max_age``: stream -> sim seconds) is older than its limit, the simulator runs at
+    real time, where the
     stack keeps its deadlines by design; when every stream is fresh again, it returns to
     its factor. A stream is watched from its first message (no localization running, no
     slowdown), only while the PLC drives, and for at most ``budget`` wall seconds per
