@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import Dict, List
 
 COMMAND, REPORT = "/lockstep/command", "/lockstep/report"
+ARMED_PARAM = "/lockstep/armed"  # set by the simulator once every member has reported (all advertised)
 
 
 def command_topic(node: str) -> str:

@@ -33,6 +33,7 @@ import xmlrpc.client
 from typing import List, Optional
 
 from quadrivio_description.config import ConfigError
+from quadrivio_description.lockstep_wire import ARMED_PARAM
 
 from ..scenario import load_scenario
 from .analyze_cli import analyze
@@ -122,6 +123,12 @@ class Runner:
             self._wait(lambda: all(self._has_topic(master, t) for t in ("/localization/odom", "/follower/status",
                                                                         "/vehicle/state", "/gps/fix")),
                        120, "real.launch's stack")
+        if self.args.lockstep:
+            # Every member advertised before the recorder subscribes: a publisher that comes
+            # after the recorder's connection check would lose its first messages to the bag
+            # (the check passes for a topic nobody publishes yet; a run missed its first 11
+            # rear scans)
+            self._wait(lambda: self._param(master, ARMED_PARAM) is True, 120, "the lockstep members")
         self.bag = self._spawn(["rosbag", "record", "--lz4", "-O", os.path.join(self.out, "run.bag"), *RECORD],
                                "rosbag.log")
         self._wait(lambda: self._recording(master), 60, "the recorder")
@@ -158,6 +165,14 @@ class Runner:
             return master.getSystemState("/experiment")[2]
         except OSError:
             return None
+
+    @staticmethod
+    def _param(master, name: str):
+        try:
+            code, _, value = master.getParam("/experiment", name)
+        except (OSError, xmlrpc.client.Error):
+            return None
+        return value if code == 1 else None
 
     def _has_topic(self, master, topic: str) -> bool:
         st = self._system(master)

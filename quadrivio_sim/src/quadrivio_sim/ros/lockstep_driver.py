@@ -15,7 +15,7 @@ from typing import Callable, Dict, List
 import rospy
 from std_msgs.msg import String
 
-from quadrivio_description.lockstep_wire import REPORT, command_topic, member_names
+from quadrivio_description.lockstep_wire import ARMED_PARAM, REPORT, command_topic, member_names
 from quadrivio_description.ros.lockstep import count_publications, publications
 
 from ..lockstep import Coordinator
@@ -138,6 +138,9 @@ class LockstepDriver:
             return False
         rospy.loginfo("lockstep: armed after %.1f s with %d members: %s", time.monotonic() - t0,
                       len(self.coord.members), " ".join(self.coord.members) or "(none)")
+        # Every member has advertised what it publishes: a recorder started now can connect to
+        # all of it before the first step (experiment waits for this)
+        rospy.set_param(ARMED_PARAM, True)
         return True
 
     # ------------------------------------------------------------ rounds
