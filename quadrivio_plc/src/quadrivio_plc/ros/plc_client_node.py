@@ -131,7 +131,10 @@ class PlcClientNode:
             return
         if first:
             rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
-        if self.np.initial_mode and not self.initial_sent:
+        # Not before this node's clock runs (sim time 0: no /clock yet): its 50 Hz frames come
+        # from a sim-time timer, so a driving mode asked for then has the watchdog brake and
+        # the session time out before the first frame (a fresh clone's plan_and_drive.test)
+        if self.np.initial_mode and not self.initial_sent and rospy.get_time() > 0.0:
             self.initial_sent = True
             self._in_background(self._request_mode, P.MODE_BY_NAME[self.np.initial_mode])
 
