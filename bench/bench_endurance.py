@@ -125,14 +125,14 @@ def rates(bag_path: str, expected: Dict[str, float], settle: float = 5.0) -> Dic
     Header stamps, not the bag's receipt times: the recorder's clock is its own /clock
     subscription, which at a high factor advances in steps of 0.1-0.2 s behind its
     recording callbacks (a steady 50 Hz stream showed 0.4 s "gaps" in receipt time)."""
-    import struct
-
     import rosbag
+
+    from quadrivio_sim.ros.converters import header_stamp
 
     times: Dict[str, List[float]] = {t: [] for t in expected}
     with rosbag.Bag(bag_path) as bag:
         for topic, raw, _t in bag.read_messages(topics=list(expected), raw=True):
-            secs, nsecs = struct.unpack_from("<II", raw[1], 4)  # every contract type starts with a Header
+            secs, nsecs = header_stamp(raw[1])  # every contract type starts with a Header
             times[topic].append(secs + nsecs * 1e-9)
     stamps = [x for ts in times.values() for x in ts]
     if not stamps:

@@ -171,6 +171,7 @@ class SimNode:
         # lockstep waits for the loop anyway
         fast = self.lockstep is None and (self.rtf == 0.0 or self.rtf > 1.0)
         self.slowdown = StaleSlowdown(self.np.stale_slowdown if fast else {}, self.np.stale_slowdown_budget)
+        self.watched_stamped: Dict[tuple, bool] = {}  # (topic, md5sum) -> whether a Header comes first
         for topic in self.slowdown.max_age:
             # Only the header's stamp is read, from the serialised message (no deserialisation)
             rospy.Subscriber(topic, rospy.AnyMsg, self._on_watched, callback_args=topic, queue_size=1)
@@ -285,7 +286,11 @@ class SimNode:
 
     def _on_watched(self, msg: rospy.AnyMsg, topic: str) -> None:
         header = getattr(msg, "_connection_header", None) or {}
-        if not C.starts_with_header(header.get("message_definition", "")):
+        kind = (topic, header.get("md5sum"))
+        stamped = self.watched_stamped.get(kind)
+        if stamped is None:  # once per topic and type, not per message (the definition is kilobytes)
+            stamped = self.watched_stamped[kind] = C.starts_with_header(header.get("message_definition", ""))
+        if not stamped:
             rospy.logerr_throttle(10.0, "~stale_slowdown: %s is %s, not a stamped message (a Header first): "
                                         "not watched", topic, header.get("type", "of an unknown type"))
             return
