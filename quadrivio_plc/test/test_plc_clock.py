@@ -54,3 +54,34 @@ def test_stamps_never_lie_ahead_of_receipt_or_fail_on_nan():
     assert clock.stamp(10.0, 5.0) == 5.0
     assert clock.stamp(10.02, 5.001) <= 5.001  # a frame faster than the first: offset shrinks
     assert clock.stamp(float("nan"), 5.1) == 5.1
+
+
+def test_a_shared_clock_is_taken_as_it_is_through_a_lagging_clock_topic():
+    """The emulated PLC on sim time, read by a client whose /clock lags by up to 0.18 s
+    while the stack starts (factor 3 in CI): the estimate would keep that lag for minutes."""
+    rng = np.random.default_rng(2)
+    shared, estimated = PlcClock(shared=True), PlcClock()
+    worst_shared = worst_estimated = 0.0
+    for k in range(1500):  # 30 s
+        t = k / RATE
+        lag = rng.uniform(0.05, 0.18) if t < 0.5 else rng.uniform(0.0, 0.01)
+        t_recv = t + 0.002 - lag  # the receiver's clock is behind the PLC's by its /clock lag
+        worst_shared = max(worst_shared, abs(shared.stamp(t, t_recv) - t))
+        if t > 1.0:
+            worst_estimated = max(worst_estimated, abs(estimated.stamp(t, t_recv) - t))
+        else:
+            estimated.stamp(t, t_recv)
+    assert worst_shared == 0.0 and shared.mismatch == 0
+    assert worst_estimated > 0.15  # what the estimate does there (why shared exists)
+    # a backlog read after a freeze keeps its measurement times, as with the estimate
+    assert shared.stamp(30.0, 40.0) == 30.0
+
+
+def test_a_clock_said_to_be_shared_that_is_not_falls_back_to_the_estimate():
+    clock = PlcClock(shared=True)
+    epoch = 5000.0  # a PLC on its own clock, configured as if on ROS time
+    for k in range(100):
+        t = k / RATE
+        s = clock.stamp(epoch + t, t + 0.003)
+        assert t <= s <= t + 0.003 + 1e-9
+    assert clock.mismatch == 100

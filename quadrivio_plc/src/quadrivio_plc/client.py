@@ -42,6 +42,10 @@ class PlcClientParams:
     mode_timeout: float = param(1.0, lo=0.05, hi=30.0, unit="s", doc="wait for the PLC to answer a mode request")
     key_file: str = param("", doc="shared session key (the PLC's); empty: $ROS_HOME/quadrivio_plc.key")
     frame_id: str = param("base_link", doc="frame_id of /vehicle/state")
+    plc_clock: str = param("auto", choices=("auto", "ros", "estimate"),
+                           doc="the PLC's clock: ros (it is ROS time: the emulated PLC on sim time, a PLC "
+                               "synchronised to this host), estimate (its own quartz: the offset is estimated "
+                               "from the frames), auto (ros under /use_sim_time, else estimate)")
 
 
 class PlcClock:
@@ -53,14 +57,25 @@ class PlcClock:
     seen (the least-delayed frame is the truest), allowed to grow by ``drift`` s per s so
     that a PLC clock running slow is followed (a quartz is within 1e-4); a PLC clock that
     steps (a restart, the simulator's reset) or a receipt clock that moves back starts
-    the estimate over. Stamps never lie ahead of their receipt."""
+    the estimate over. Stamps never lie ahead of their receipt.
 
-    def __init__(self, drift: float = 2e-4, max_step: float = 1.0) -> None:
-        self.drift, self.max_step = drift, max_step
+    ``shared=True`` says the PLC's clock *is* the receiver's clock: the emulated PLC runs on
+    sim time, which is ROS time. Its ``plc_time`` is then the stamp as it is. The estimate
+    would be wrong there: a receiver on sim time reads ``/clock`` late now and then (by
+    0.18 s at factor 3 while the stack starts), and the smallest ``t_recv - plc_time`` would
+    keep that lag and stamp every state early by it for the next 15 minutes (2e-4 s/s).
+    The estimate still runs, as a check: while it puts the two clocks more than ``max_step``
+    apart they are not the same clock (a misconfiguration), and its stamps are used
+    (``mismatch`` counts those frames). So a shared stamp may lie ahead of a receipt made
+    on a lagging ``/clock``, never by more than ``max_step``."""
+
+    def __init__(self, drift: float = 2e-4, max_step: float = 1.0, shared: bool = False) -> None:
+        self.drift, self.max_step, self.shared = drift, max_step, shared
         self.offset: Optional[float] = None
         self.last: Optional[Tuple[float, float]] = None  # (plc_time, t_recv) of the previous frame
         self.restarts = 0
         self.late = 0  # frames stamped more than 0.1 s before their receipt
+        self.mismatch = 0  # shared: frames whose clock was not the receiver's (estimated instead)
 
     def reset(self) -> None:
         self.offset = self.last = None
@@ -83,6 +98,11 @@ class PlcClock:
             self.offset = min(grown, sample)
         self.last = (plc_time, t_recv)
         t = min(t_recv, plc_time + self.offset)
+        if self.shared:
+            if abs(self.offset) <= self.max_step:
+                t = plc_time
+            else:
+                self.mismatch += 1
         if t_recv - t > 0.1:
             self.late += 1
         return t

@@ -3,7 +3,9 @@
 Parameters (private): ``~host`` (str, 127.0.0.1), ``~port`` (int, 5020), ``~send_rate``
 (Hz, 50), ``~setpoint_timeout`` (s, 0.25), ``~stop_brake`` (0.5), ``~connect_timeout``
 (s, 1), ``~reconnect_min`` / ``~reconnect_max`` (s, 0.1 / 5), ``~mode_timeout`` (s, 1),
-``~frame_id`` (base_link), ``~initial_mode`` (str, "": request this mode once connected).
+``~frame_id`` (base_link), ``~initial_mode`` (str, "": request this mode once connected),
+``~plc_clock`` (auto | ros | estimate: whether ``plc_time`` is ROS time, as the emulated
+PLC's sim time is; auto: ros under /use_sim_time).
 
 ``~key_file`` (str, "": $ROS_HOME/quadrivio_plc.key, the PLC's shared session key).
 ``~initial_mode`` is requested again after ROS time moves back (the simulator's ``~reset``
@@ -63,7 +65,8 @@ class PlcClientNode:
         self.interlocks: Dict[str, str] = {}  # active interlocks: source -> reason
         self.initial_sent = False
         self.link_down_published = -1e9
-        self.clock = PlcClock()
+        shared = self.p.plc_clock == "ros" or (self.p.plc_clock == "auto" and bool(rospy.get_param("/use_sim_time", False)))
+        self.clock = PlcClock(shared=shared)
         self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
         on_state, on_ack = self._on_state, self._on_ack
         self.lockstep = lockstep.member()
@@ -122,7 +125,12 @@ class PlcClientNode:
         m = VehicleState()
         # when the PLC measured it: a frame read late (this process descheduled or stopped,
         # a backlog in the socket) is not a fresh measurement
+        mismatch = self.clock.mismatch
         m.header.stamp = rospy.Time.from_sec(self.clock.stamp(s.plc_time, rospy.get_time()))
+        if self.clock.mismatch > mismatch:
+            rospy.logwarn_throttle(10.0, "~plc_clock: the PLC's clock is %.1f s off ROS time, so it is not ROS "
+                                   "time: states are stamped on the estimated offset (%d so far)",
+                                   -self.clock.offset, self.clock.mismatch)
         m.header.frame_id = self.p.frame_id
         m.wheel_speed, m.handlebar, m.throttle, m.brake = s.wheel_speed, s.handlebar, s.throttle, s.brake
         m.mode, m.faults, m.plc_time = s.mode, s.faults, s.plc_time
@@ -281,7 +289,9 @@ class PlcClientNode:
                            ("active interlocks", str(self.interlocks)),
                            ("connects", str(s.connects)), ("disconnects", str(s.disconnects)),
                            ("states read more than 0.1 s late", str(self.clock.late)),
-                           ("PLC clock restarts", str(self.clock.restarts))):
+                           ("PLC clock restarts", str(self.clock.restarts)),
+                           ("PLC clock", "ROS time" if self.clock.shared else "estimated offset"),
+                           ("states whose clock was not ROS time", str(self.clock.mismatch))):
             stat.add(key, value)
         return stat
 
