@@ -31,10 +31,11 @@ def resting_script(seconds):
 
 
 def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
-        script=wandering_script, mag_delay=0.0):
+        script=wandering_script, mag_delay=0.0, imu_delay=0.0):
     """Returns (errors array of [t, position error, heading error, heading sigma, error east, error north,
     covariance xx, xy, yy], localizer, last estimate). ``mag_delay``: the magnetometer's
-    readings reach the smoother this many seconds after their stamp."""
+    readings reach the smoother this many seconds after their stamp; ``imu_delay`` the same
+    for the IMU's."""
     v, site = load_vehicle(), load_site()
     frame = site.local_frame()
     sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -48,6 +49,7 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
     loc = Localizer(params or LocalizerParams(), v, site)
     errors, truth, est = [], {}, None
     mags = []  # (stamp, reading) not delivered yet
+    imus = []  # (stamp, specific force, angular rate) not delivered yet
     while sim.t < seconds - 1e-9:
         for name, s in sim.step():
             if name == "ground_truth":
@@ -56,7 +58,9 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                 loc.add_vehicle_state(s.plc_time, s.wheel_speed * speed_scale, s.handlebar + handlebar_offset)
             elif name == "imu":
                 f, w = imu.apply(s.specific_force, s.angular_rate)
-                loc.add_imu(s.stamp, tuple(f), (w[0], w[1], w[2] + gyro_bias))
+                imus.append((s.stamp, tuple(f), (w[0], w[1], w[2] + gyro_bias)))
+                if imu_delay <= 0.0:  # in the simulator's order, among the other sensors
+                    loc.add_imu(*imus.pop())
             elif name == "mag":
                 mags.append((s.stamp, tuple(mag.apply(s.field))))
             elif name == "gps":
@@ -66,6 +70,8 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                 else:
                     lat, lon, alt = frame.enu_to_lla(*r.position)
                     loc.add_gps(s.stamp, lat, lon, alt, r.variances[0], r.variances[1], r.status)
+        while imus and imus[0][0] + imu_delay <= sim.t + 1e-9:
+            loc.add_imu(*imus.pop(0))
         while mags and mags[0][0] + mag_delay <= sim.t + 1e-9:
             loc.add_mag(*mags.pop(0))
         if sim.steps % 5 == 0:

@@ -67,3 +67,43 @@ def test_no_gravity_yet_means_level():
     lev.add_imu(0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.1))
     assert lev.t is None and lev.roll == 0.0 and lev.pitch == 0.0
     assert lev.level_mag((20.0, 5.0, -40.0)) == pytest.approx((20.0, 5.0))
+
+
+def test_a_late_imu_is_levelled_with_the_speed_of_its_own_time():
+    """Level ground, the vehicle speeding up and braking (2 m/s^2) in a turn; the wheel
+    speeds arrive when measured, the IMU 0.15 s after (a driver's filter, a USB buffer).
+    Levelled with the speed of when it arrived, each sample's forward and centripetal
+    terms were 0.15 s off its own: a pitch and roll of a degree or more, from nothing."""
+    lev = Leveller(vehicle(), TAU)
+    yaw_rate = 0.3
+
+    def v(t):
+        return 2.0 + math.sin(2.0 * t)
+
+    def a(t):
+        return 2.0 * math.cos(2.0 * t)
+
+    events = [(k / 50.0, "speed", k / 50.0) for k in range(1000)]
+    events += [(k / 100.0 + 0.15, "imu", k / 100.0) for k in range(2000)]
+    worst = 0.0
+    for _, kind, t in sorted(events, key=lambda e: (e[0], e[1] == "imu")):
+        if kind == "speed":
+            lev.add_speed(t, v(t))
+            continue
+        f = (a(t), v(t) * yaw_rate, G)  # level: forward acceleration, centripetal, gravity
+        rate = lev.add_imu(t, f, (0.0, 0.0, yaw_rate))
+        assert rate == pytest.approx(yaw_rate, rel=1e-3)
+        if t > 3.0:
+            worst = max(worst, abs(lev.roll), abs(lev.pitch))
+    assert math.degrees(worst) < 0.2
+
+
+def test_speeds_out_of_order_or_repeated_are_ignored():
+    lev = Leveller(vehicle(), TAU)
+    lev.add_speed(1.0, 2.0)
+    lev.add_speed(1.1, 2.2)
+    lev.add_speed(1.05, 9.0)  # older than the newest
+    lev.add_speed(1.1, 9.0)  # the same time again
+    assert lev.speed_and_accel() == pytest.approx((2.2, 2.0))
+    assert lev.speed_and_accel(1.02) == pytest.approx((2.0, 2.0))
+    assert lev.speed_and_accel(0.5) == pytest.approx((2.0, 2.0))  # before the history: its oldest

@@ -18,7 +18,8 @@ for seconds.
 from __future__ import annotations
 
 import math
-from typing import Optional, Sequence, Tuple
+from bisect import bisect_right
+from typing import List, Optional, Sequence, Tuple
 
 from quadrivio_description.frames import level, rotate, tilt_from_gravity
 from quadrivio_description.vehicle import VehicleParams
@@ -48,23 +49,37 @@ class Leveller:
         self.t0: Optional[float] = None  # time of the first such sample
         self.n = 0  # samples that set the tilt
         self.rejected = 0  # samples not near 1 g
-        self._speeds: list = []  # the last two (t, v)
+        self._ts: List[float] = []  # the recent wheel speeds' times (ascending) ...
+        self._vs: List[float] = []  # ... and speeds, HISTORY s or more of them
+
+    HISTORY = 1.0  # [s] of wheel speeds kept: an IMU later than this gets the oldest
 
     def add_speed(self, t: float, v: float) -> None:
-        self._speeds = (self._speeds + [(t, v)])[-2:]
+        if self._ts and t <= self._ts[-1]:
+            return  # out of order (the smoother counts those)
+        self._ts.append(t)
+        self._vs.append(v)
+        if len(self._ts) > 8 and self._ts[-1] - self._ts[len(self._ts) // 2] > self.HISTORY:
+            del self._ts[:len(self._ts) // 2], self._vs[:len(self._vs) // 2]
 
-    def speed_and_accel(self) -> Tuple[float, float]:
-        if not self._speeds:
+    def speed_and_accel(self, t: Optional[float] = None) -> Tuple[float, float]:
+        """Speed and acceleration at ``t`` (None: the newest): the newest speed at or before
+        ``t`` and the slope of the interval it starts (ends, for the newest). An IMU that
+        arrives late must not be levelled with the speed of when it arrived: in a braking
+        or a turn taken 0.15 s later the centripetal and forward terms are not its own."""
+        ts, vs = self._ts, self._vs
+        if not ts:
             return 0.0, 0.0
-        if len(self._speeds) < 2:
-            return self._speeds[-1][1], 0.0
-        (t0, v0), (t1, v1) = self._speeds
-        return v1, ((v1 - v0) / (t1 - t0) if t1 > t0 else 0.0)
+        if len(ts) < 2:
+            return vs[-1], 0.0
+        i = len(ts) - 1 if t is None else max(0, bisect_right(ts, t) - 1)
+        a, b = (i - 1, i) if i == len(ts) - 1 else (i, i + 1)
+        return vs[i], (vs[b] - vs[a]) / (ts[b] - ts[a])
 
     def add_imu(self, t: float, f: Sequence[float], w: Sequence[float]) -> float:
         """Update the tilt from one IMU sample; returns the yaw rate about the vertical [rad/s]."""
         fb, wb = rotate(self.imu_mount, f), rotate(self.imu_mount, w)
-        v, dv = self.speed_and_accel()
+        v, dv = self.speed_and_accel(t)
         g = (fb[0] - dv, fb[1] - v * wb[2], fb[2])
         if abs(math.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2) / G - 1.0) > GRAVITY_BAND:
             self.rejected += 1
