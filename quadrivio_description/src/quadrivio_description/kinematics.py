@@ -109,7 +109,15 @@ def arc(span: float, speed: float, handlebar: float, calib: Sequence[float], whe
     ``limit`` is the vehicle's virtual wheel angle limit (:func:`max_delta`): whatever the
     calibration says, the wheels turn no further (and the Jacobian says so: zero).
     """
-    k_v, h0, k_d = calib
+    out, cols = arc_floats(span, speed, handlebar, calib[0], calib[1], calib[2], wheelbase, ratio, limit)
+    return np.array(out), np.array(cols).T
+
+
+def arc_floats(span: float, speed: float, handlebar: float, k_v: float, h0: float, k_d: float, wheelbase: float,
+               ratio: float, limit: float):
+    """:func:`arc` in plain floats, for the smoother's odometry factor (called at every
+    relinearisation, where numpy's per-array cost was most of its time): ``(dx, dy,
+    dtheta)`` and the Jacobian's three columns, d/dk_v, d/dh_0, d/dk_d."""
     vt = speed * span
     s = k_v * vt
     raw = k_d * ratio * (handlebar + h0)
@@ -118,16 +126,16 @@ def arc(span: float, speed: float, handlebar: float, calib: Sequence[float], whe
     dth = s * kappa
     f, df = _f(dth)
     g, dg = _g(dth)
-    out = np.array([s * f, s * g, dth])
     dth_kv = vt * kappa  # d/dk_v: ds = vt
-    col_kv = np.array([vt * f + s * df * dth_kv, vt * g + s * dg * dth_kv, dth_kv])
+    col_kv = (vt * f + s * df * dth_kv, vt * g + s * dg * dth_kv, dth_kv)
     if delta != raw:  # clamped: the calibration does not move the wheels
-        col_d = np.zeros(3)
+        col_h0 = col_kd = (0.0, 0.0, 0.0)
     else:  # d/d(delta): ds = 0, d(dtheta) = s sec^2(delta) / L
         dth_d = s / (math.cos(delta) ** 2 * wheelbase)
-        col_d = np.array([s * df * dth_d, s * dg * dth_d, dth_d])
-    J = np.column_stack([col_kv, col_d * k_d * ratio, col_d * ratio * (handlebar + h0)])
-    return out, J
+        a, b = k_d * ratio, ratio * (handlebar + h0)
+        col_h0 = (s * df * dth_d * a, s * dg * dth_d * a, dth_d * a)
+        col_kd = (s * df * dth_d * b, s * dg * dth_d * b, dth_d * b)
+    return (s * f, s * g, dth), (col_kv, col_h0, col_kd)
 
 
 def compose(pose: Tuple[float, float, float], d: Sequence[float]) -> Tuple[float, float, float]:

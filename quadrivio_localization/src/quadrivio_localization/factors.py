@@ -60,38 +60,41 @@ def odometry_factor(noise, k0: int, k1: int, kc: int, span: float, speed: float,
     ``|t_1 - t_0|^2 / sigma^2``, from the position estimates' jitter: standing still, the
     body-frame form lets GPS noise pose as heading information, and the marginals keep it.
     """
+    keys = [k0, k1, kc]
+    cos, sin, arc_floats = math.cos, math.sin, kinematics.arc_floats
+
+    # In floats, not numpy: iSAM2 calls this at every relinearisation of the keyframes
+    # (33 -> 13 us a call), and the slowest updates are those relinearising a second of them.
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H):
-        p0, p1 = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
-        d, Jc = arc(span, speed, handlebar, values.atVector(this.keys()[2]), wheelbase, ratio, limit)
-        R0, R1 = _rot(p0.theta()), _rot(p1.theta())
-        rd = R0 @ d[:2]
-        e = np.array([p1.x() - p0.x() - rd[0], p1.y() - p0.y() - rd[1], wrap(p1.theta() - p0.theta() - d[2])])
+        p0, p1, c = values.atPose2(k0), values.atPose2(k1), values.atVector(kc)
+        (dx, dy, dth), cols = arc_floats(span, speed, handlebar, c[0], c[1], c[2], wheelbase, ratio, limit)
+        th0 = p0.theta()
+        c0, s0 = cos(th0), sin(th0)
+        rdx, rdy = c0 * dx - s0 * dy, s0 * dx + c0 * dy  # R0 D_xy
+        e = np.array([p1.x() - p0.x() - rdx, p1.y() - p0.y() - rdy, wrap(p1.theta() - th0 - dth)])
         if H is not None:
-            J0 = np.zeros((3, 3))
-            J0[:2, :2] = -R0
-            J0[:2, 2] = np.array([rd[1], -rd[0]])  # -d(R0 d)/d(theta0)
-            J0[2, 2] = -1.0
-            J1 = np.zeros((3, 3))
-            J1[:2, :2] = R1
-            J1[2, 2] = 1.0
-            Jk = np.vstack([-R0 @ Jc[:2], -Jc[2:3]])
-            H[0], H[1], H[2] = J0, J1, Jk
+            th1 = p1.theta()
+            c1, s1 = cos(th1), sin(th1)
+            # -d(R0 D)/d(theta0) in the last column; the calibration's: -R0 dD_xy, -dD_theta
+            H[0] = np.array([[-c0, s0, rdy], [-s0, -c0, -rdx], [0.0, 0.0, -1.0]])
+            H[1] = np.array([[c1, -s1, 0.0], [s1, c1, 0.0], [0.0, 0.0, 1.0]])
+            H[2] = np.array([[s0 * b - c0 * a for a, b, _ in cols], [-s0 * a - c0 * b for a, b, _ in cols],
+                             [-t for _, _, t in cols]])
         return e
-    return gtsam.CustomFactor(noise, [k0, k1, kc], error)
+    return gtsam.CustomFactor(noise, keys, error)
 
 
 # ---------------------------------------------------------------------- gyro
 
 def gyro_factor(noise, k0: int, k1: int, kb: int, dtheta: float, span: float) -> gtsam.CustomFactor:
     """``dtheta`` = sum of vertical rates x dt over the interval of length ``span``."""
+    J0, J1, Jb = np.array([[0.0, 0.0, -1.0]]), np.array([[0.0, 0.0, 1.0]]), np.array([[span]])
+
     def error(this, values, H):
-        p0, p1 = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
-        b = values.atVector(this.keys()[2])[0]
-        e = np.array([wrap(p1.theta() - p0.theta() - (dtheta - b * span))])
+        b = values.atVector(kb)[0]
+        e = np.array([wrap(values.atPose2(k1).theta() - values.atPose2(k0).theta() - (dtheta - b * span))])
         if H is not None:
-            H[0] = np.array([[0.0, 0.0, -1.0]])
-            H[1] = np.array([[0.0, 0.0, 1.0]])
-            H[2] = np.array([[span]])
+            H[0], H[1], H[2] = J0, J1, Jb
         return e
     return gtsam.CustomFactor(noise, [k0, k1, kb], error)
 
