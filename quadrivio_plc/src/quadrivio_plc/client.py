@@ -64,10 +64,13 @@ class PlcClock:
     would be wrong there: a receiver on sim time reads ``/clock`` late now and then (by
     0.18 s at factor 3 while the stack starts), and the smallest ``t_recv - plc_time`` would
     keep that lag and stamp every state early by it for the next 15 minutes (2e-4 s/s).
-    The estimate still runs, as a check: while it puts the two clocks more than ``max_step``
-    apart they are not the same clock (a misconfiguration), and its stamps are used
-    (``mismatch`` counts those frames). So a shared stamp may lie ahead of a receipt made
-    on a lagging ``/clock``, never by more than ``max_step``."""
+    The estimate still runs, for a check: when even the least-delayed frame since the last
+    start-over is more than ``max_step`` behind, or a frame is more than ``max_step`` ahead
+    of its receipt, the two are not the same clock (a misconfiguration, or a receiver
+    lagging by more than that), and the estimate's stamp is used (``mismatch`` counts those
+    frames). A frame read late is behind, never ahead, so a backlog keeps its ``plc_time``.
+    A shared stamp may lie ahead of a receipt made on a lagging ``/clock``, never by more
+    than ``max_step``."""
 
     def __init__(self, drift: float = 2e-4, max_step: float = 1.0, shared: bool = False) -> None:
         self.drift, self.max_step, self.shared = drift, max_step, shared
@@ -76,9 +79,10 @@ class PlcClock:
         self.restarts = 0
         self.late = 0  # frames stamped more than 0.1 s before their receipt
         self.mismatch = 0  # shared: frames whose clock was not the receiver's (estimated instead)
+        self.least: Optional[float] = None  # smallest t_recv - plc_time since the last start-over
 
     def reset(self) -> None:
-        self.offset = self.last = None
+        self.offset = self.last = self.least = None
 
     def stamp(self, plc_time: float, t_recv: float) -> float:
         """Receipt-clock time of the measurement ``plc_time`` read at ``t_recv``."""
@@ -96,10 +100,12 @@ class PlcClock:
         else:
             grown = self.offset + self.drift * max(0.0, t_recv - self.last[1])
             self.offset = min(grown, sample)
+        self.least = sample if self.least is None else min(self.least, sample)
         self.last = (plc_time, t_recv)
         t = min(t_recv, plc_time + self.offset)
         if self.shared:
-            if abs(self.offset) <= self.max_step:
+            # not the offset: a /clock read late at the start leaves it below -max_step for minutes
+            if self.least <= self.max_step and -sample <= self.max_step:
                 t = plc_time
             else:
                 self.mismatch += 1
