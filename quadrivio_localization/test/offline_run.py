@@ -30,12 +30,21 @@ def resting_script(seconds):
     return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0)])
 
 
+def freeze_script(seconds, start=4.0, stop=5.2, go=15.0):
+    """faults_fast's frozen client: speeding up from ``start``, a full brake at ``stop``
+    (the PLC's watchdog, while still speeding up), standing until ``go``, then driving on a
+    gentle curve."""
+    return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0), ScriptRow(start, 2.0, 0.05, 0.0),
+                           ScriptRow(stop, 0.0, 0.0, 1.0), ScriptRow(go, 1.6, 0.15, 0.0)])
+
+
 def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
-        script=wandering_script, mag_delay=0.0, imu_delay=0.0):
+        script=wandering_script, mag_delay=0.0, imu_delay=0.0, state_gap=None):
     """Returns (errors array of [t, position error, heading error, heading sigma, error east, error north,
-    covariance xx, xy, yy], localizer, last estimate). ``mag_delay``: the magnetometer's
+    covariance xx, xy, yy, estimated speed, true speed], localizer, last estimate). ``mag_delay``: the magnetometer's
     readings reach the smoother this many seconds after their stamp; ``imu_delay`` the same
-    for the IMU's."""
+    for the IMU's; ``state_gap``: (t0, t1), no PLC state stamped in between reaches it (a
+    frozen PLC client)."""
     v, site = load_vehicle(), load_site()
     frame = site.local_frame()
     sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -55,6 +64,8 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
             if name == "ground_truth":
                 truth[round(s.stamp, 6)] = s
             elif name == "plc_state":
+                if state_gap is not None and state_gap[0] <= s.plc_time < state_gap[1]:
+                    continue
                 loc.add_vehicle_state(s.plc_time, s.wheel_speed * speed_scale, s.handlebar + handlebar_offset)
             elif name == "imu":
                 f, w = imu.apply(s.specific_force, s.angular_rate)
@@ -86,6 +97,6 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
                     errors.append((e.stamp, math.hypot(e.x - gt.position[0], e.y - gt.position[1]),
                                    math.degrees(math.remainder(e.theta - yaw, 2 * math.pi)),
                                    math.degrees(math.sqrt(c[2, 2])), e.x - gt.position[0], e.y - gt.position[1],
-                                   c[0, 0], c[0, 1], c[1, 1]))
+                                   c[0, 0], c[0, 1], c[1, 1], e.speed, math.hypot(*gt.linear_velocity[:2])))
     sim.close()
     return np.array(errors), loc, est

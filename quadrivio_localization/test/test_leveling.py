@@ -107,3 +107,44 @@ def test_speeds_out_of_order_or_repeated_are_ignored():
     assert lev.speed_and_accel() == pytest.approx((2.2, 2.0))
     assert lev.speed_and_accel(1.02) == pytest.approx((2.0, 2.0))
     assert lev.speed_and_accel(0.5) == pytest.approx((2.0, 2.0))  # before the history: its oldest
+
+
+def _drive_then_silence(lev, speed_period, t_silent, t_end, accel=2.2):
+    """Standing for 1 s, then speeding up at ``accel`` on level ground, with the wheel speed
+    every ``speed_period`` s until ``t_silent``; then the wheel speed stops (a frozen PLC
+    client) and the vehicle brakes to a stop at 3 m/s^2 and stands. Returns the worst tilt
+    [deg] in each second."""
+    worst, v, next_speed = {}, 0.0, 0.0
+    for k in range(int(t_end / 0.01)):
+        t = 0.01 * k
+        a = (accel if t >= 1.0 else 0.0) if t < t_silent else (-3.0 if v > 0.0 else 0.0)
+        if t >= next_speed - 1e-9 and t < t_silent:
+            lev.add_speed(t, v)
+            next_speed += speed_period
+        lev.add_imu(t, (a, 0.0, G), (0.0, 0.0, 0.0))
+        v = max(0.0, v + a * 0.01)
+        worst[int(t)] = max(worst.get(int(t), 0.0), math.degrees(max(abs(lev.roll), abs(lev.pitch))))
+    return worst
+
+
+def test_a_silent_wheel_speed_leaves_no_acceleration_behind():
+    """The wheel speed stops while the vehicle speeds up (faults_fast's frozen client):
+    its last slope must not stay in. It did: the vehicle stood braked for 9.6 s with the
+    pitch at 12.5 deg, and the magnetometer levelled with it turned the heading 0.5 rad.
+    (While it brakes unseen the tilt is wrong, and cannot be otherwise.)"""
+    lev = Leveller(vehicle(), TAU, stale_after=0.25)
+    worst = _drive_then_silence(lev, 0.05, 3.0, 12.0)
+    assert worst[2] < 0.3  # while the speed comes: no tilt from the acceleration
+    assert max(worst[s] for s in range(9, 12)) < 0.3  # standing, no speed: the tilt is gravity's again
+    assert lev.speed_and_accel(11.0)[1] == 0.0
+    assert lev.speed_and_accel(3.1)[1] == pytest.approx(2.2, rel=0.01)  # within stale_after of the newest
+
+
+def test_a_slow_wheel_speed_stream_keeps_its_acceleration_between_messages():
+    """Our PLC sends 20 states a second; a stream of 2 keeps its slope for three of its own
+    intervals, and still loses it once silent."""
+    lev = Leveller(vehicle(), TAU, stale_after=0.25)
+    worst = _drive_then_silence(lev, 0.5, 3.0, 12.0)
+    assert lev.speed_and_accel(4.0)[1] == pytest.approx(2.2, rel=0.01)
+    assert lev.speed_and_accel(4.1)[1] == 0.0
+    assert max(worst[s] for s in range(9, 12)) < 0.3

@@ -195,3 +195,25 @@ def test_magnetometer_readings_later_than_max_wait_are_dropped_and_counted():
     _, loc, _ = run(seconds=20.0, seed=2, mag_delay=1.0, params=params)
     assert loc.counters.mag_late > 0
     assert loc.counters.mag_used > 0  # the slots still close, without the late readings
+
+
+def test_a_frozen_client_leaves_heading_and_speed_honest():
+    """faults_fast's frozen PLC client, offline: the wheel speed stops while the vehicle
+    speeds up, the watchdog brakes it, it stands 9.6 s without odometry, then drives on. The
+    Leveller extrapolated the last wheel-speed slope through the freeze: a 12.5 deg pitch,
+    the magnetometer levelled with it turned the heading 15 deg while the vehicle stood,
+    and in CI the fixes that came back after the resume were taken for multipath (the
+    localization 3.6 m off in 5 s). And /localization/odom said 1.4 m/s all the while."""
+    from offline_run import freeze_script
+    gap = (5.0, 14.8)
+    errors, loc, _ = run(seconds=21.0, seed=0, script=freeze_script, state_gap=gap)
+    at = lambda t: errors[np.searchsorted(errors[:, 0], t)]
+    drift = abs(at(gap[1] - 0.1)[2] - at(gap[0])[2])
+    assert drift < 5.0, f"heading turned {drift:.1f} deg while the vehicle stood without odometry"
+    standing = errors[(errors[:, 0] > 8.0) & (errors[:, 0] < gap[1])]
+    assert np.abs(standing[:, 10]).max() < 0.05  # it does stand still
+    assert np.abs(standing[:, 9]).max() < 0.2, "the speed reported while standing without odometry"
+    after = errors[errors[:, 0] > gap[1]]
+    assert after[:, 1].max() < 0.6 and np.abs(after[:, 2]).max() < 5.0
+    assert loc.gate.counts["multipath"] == 0 and loc.gate.counts["outlier"] == 0
+    assert loc.counters.intervals_without_odometry >= 190

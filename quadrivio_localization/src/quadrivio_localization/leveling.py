@@ -8,6 +8,14 @@ would look like a roll and leak the large vertical field into the levelled
 magnetometer). The smoother and the magnetometer calibration share this class, so a
 calibration is fitted to exactly the readings the smoother will see.
 
+The wheel speed says the vehicle's acceleration only while it arrives. When it stops (a
+frozen PLC client, a dropped link), a sample later than the newest speed by more than
+``stale_after`` (or three of the stream's own intervals, if longer) is levelled as
+unaccelerated: the last interval's slope extrapolated would be a tilt. It was: a client
+frozen while the vehicle sped up at 2.2 m/s^2 left that slope in for the 9.6 s the vehicle
+stood braked, the pitch read 12.5 deg, the magnetometer levelled with it turned the
+heading 0.5 rad, and the fixes that came back were taken for multipath.
+
 Only samples whose specific force is within ``GRAVITY_BAND`` of 1 g say where gravity is:
 a driver starting up (zeros, or a filter ramping up from them), a vehicle dropping onto
 its suspension, a shock on rough ground do not. The first accepted samples are averaged
@@ -40,10 +48,11 @@ GRAVITY_BAND = 0.3  # a sample whose |specific force| is more than this fraction
 class Leveller:
     """Feed wheel speeds and IMU samples in time order; level gyro and magnetometer readings."""
 
-    def __init__(self, vehicle: VehicleParams, tilt_tau: float) -> None:
+    def __init__(self, vehicle: VehicleParams, tilt_tau: float, stale_after: float = 0.25) -> None:
         self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.mag_mount = vehicle.sensors["mag_link"].rpy
         self.tau = tilt_tau
+        self.stale_after = stale_after  # [s] a wheel speed older than this says nothing of the acceleration now
         self.roll = self.pitch = 0.0
         self.t: Optional[float] = None  # time of the newest sample that set the tilt
         self.t0: Optional[float] = None  # time of the first such sample
@@ -66,15 +75,24 @@ class Leveller:
         """Speed and acceleration at ``t`` (None: the newest): the newest speed at or before
         ``t`` and the slope of the interval it starts (ends, for the newest). An IMU that
         arrives late must not be levelled with the speed of when it arrived: in a braking
-        or a turn taken 0.15 s later the centripetal and forward terms are not its own."""
+        or a turn taken 0.15 s later the centripetal and forward terms are not its own.
+        Past the newest speed by more than :meth:`stale` s: that speed and no acceleration."""
         ts, vs = self._ts, self._vs
         if not ts:
             return 0.0, 0.0
         if len(ts) < 2:
             return vs[-1], 0.0
         i = len(ts) - 1 if t is None else max(0, bisect_right(ts, t) - 1)
+        if i == len(ts) - 1 and t is not None and t - ts[-1] > self.stale():
+            return vs[i], 0.0
         a, b = (i - 1, i) if i == len(ts) - 1 else (i, i + 1)
         return vs[i], (vs[b] - vs[a]) / (ts[b] - ts[a])
+
+    def stale(self) -> float:
+        """How long past the newest wheel speed its acceleration is still believed [s]:
+        ``stale_after``, or three of the stream's newest intervals for a slower stream."""
+        ts = self._ts
+        return max(self.stale_after, 3.0 * (ts[-1] - ts[-2])) if len(ts) >= 2 else self.stale_after
 
     def add_imu(self, t: float, f: Sequence[float], w: Sequence[float]) -> float:
         """Update the tilt from one IMU sample; returns the yaw rate about the vertical [rad/s]."""

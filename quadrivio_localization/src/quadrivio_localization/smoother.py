@@ -138,7 +138,7 @@ class Localizer:
         self.h_en = (h[0] * UT, h[1] * UT)
         self.lever = tuple(vehicle.sensors["gps_link"].xyz[:2])
         self.lever_z = vehicle.sensors["gps_link"].xyz[2]
-        self.leveller = Leveller(vehicle, p.tilt_tau)
+        self.leveller = Leveller(vehicle, p.tilt_tau, p.max_wait)
         self.dt = 1.0 / p.rate
         self.max_delta = max_delta(vehicle)  # [rad] the wheels turn no further, whatever the calibration
         self.states: SampleBuffer[Tuple[float, float]] = SampleBuffer()  # speed [m/s], handlebar [rad]
@@ -150,6 +150,7 @@ class Localizer:
         self.gate = GpsGate(p.gps_gate)
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
+        self.no_odometry_from_k = 0  # and the start of its stretch
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -340,6 +341,15 @@ class Localizer:
         t_new = self._t(self.k)
         self.smoother.update(graph, values, stamps)
         self.result = self.smoother.calculateEstimate()
+        if self.no_odometry_t >= t_new - 1e-9:
+            # Without odometry the speed is the estimate's own motion over the last second
+            # without it (the constant-velocity factor and the fixes), not the last wheel
+            # speed: that one said 1.4 m/s on /localization/odom for the 9.6 s a frozen
+            # client's vehicle stood braked.
+            k0 = max(self.no_odometry_from_k, self.k - int(round(1.0 / self.dt)), self.oldest_k)
+            if k0 < self.k and self.result.exists(X(k0)):
+                step = self.result.atPose2(X(k0)).between(self.result.atPose2(X(self.k)))
+                self.latest_speed = step.x() / ((self.k - k0) * self.dt)
         try:
             self.cov = np.asarray(self.smoother.marginalCovariance(X(self.k)))
         except RuntimeError:
@@ -376,6 +386,8 @@ class Localizer:
             self.latest_speed = kin[0] * samples[-1][1]
         else:
             self.counters.intervals_without_odometry += 1
+            if self.no_odometry_t < t0 - 1e-9:
+                self.no_odometry_from_k = k0  # the first keyframe of this stretch without odometry
             self.no_odometry_t = t1
             graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), gtsam.Pose2(),
                                                gtsam.noiseModel.Diagonal.Sigmas(np.array(nz.no_odometry))))
