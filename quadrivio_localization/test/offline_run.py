@@ -30,6 +30,12 @@ def resting_script(seconds):
     return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0)])
 
 
+def brake_script(seconds, brake=20.0):
+    """Up to 3 m/s on a gentle curve, a full brake at ``brake`` (the wheels lock), then on."""
+    return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0), ScriptRow(2.0, 3.0, 0.05, 0.0),
+                           ScriptRow(brake, 0.0, 0.0, 1.0), ScriptRow(brake + 5.0, 3.0, -0.1, 0.0)])
+
+
 def freeze_script(seconds, start=4.0, stop=5.2, go=15.0):
     """faults_fast's frozen client: speeding up from ``start``, a full brake at ``stop``
     (the PLC's watchdog, while still speeding up), standing until ``go``, then driving on a

@@ -90,3 +90,9 @@ class SampleBuffer(Generic[V]):
         i0 = bisect.bisect_left(self.t, t0)
         i1 = bisect.bisect_right(self.t, t1)
         return [self.v[i] for i in range(i0, i1)]
+
+    def stamped(self, t0: float, t1: float) -> List[Tuple[float, V]]:
+        """``(t, value)`` of the samples stamped in ``[t0, t1]``."""
+        i0 = bisect.bisect_left(self.t, t0)
+        i1 = bisect.bisect_right(self.t, t1)
+        return [(self.t[i], self.v[i]) for i in range(i0, i1)]

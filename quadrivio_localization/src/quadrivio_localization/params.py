@@ -96,6 +96,10 @@ class LocalizerParams:
                                     doc="a wheel speed of 0 while the gyro's yaw rate is above this...")
     wheel_check_time: float = param(0.3, lo=0.0, hi=60.0, unit="s",
                                     doc="...for this long is a dead wheel-speed channel: odometry ignored (0: never)")
+    wheel_lock_decel: float = param(12.0, lo=0.0, hi=1000.0, unit="m/s^2",
+                                    doc="a wheel speed that drops faster than this is a locked wheel, not the vehicle: "
+                                        "odometry ignored until it reads motion again or the vehicle would have "
+                                        "stopped at no_odometry_accel (0: never)")
     mag_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="magnetometer factors per second (readings averaged)")
     calibrate: bool = param(True, doc="estimate the calibration online (false: hold the priors' means)")
     initial_heading_sigma: float = param(3.0, lo=1e-3, hi=4.0, unit="rad",

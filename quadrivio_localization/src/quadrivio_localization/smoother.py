@@ -116,6 +116,7 @@ class Counters:
     intervals_without_odometry: int = 0
     intervals_without_gyro: int = 0
     intervals_wheel_rejected: int = 0  # the wheel read 0 while the vehicle moved (Localizer.faults)
+    intervals_wheel_locked: int = 0  # the wheel speed dropped faster than the vehicle can brake
     out_of_order: int = 0
     bad_input: int = 0
     update_time: float = 0.0  # [s] wall time of the last smoother update (set by the caller)
@@ -151,6 +152,7 @@ class Localizer:
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
+        self.wheel_lock: Optional[Tuple[float, float, float]] = None  # a locked wheel: (since, until, speed read)
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -370,6 +372,9 @@ class Localizer:
         if samples and self._wheel_dead(t1, samples, dth_gyro, float(prev_b[0])):
             samples = []  # a wheel that reads 0 while the vehicle turns says nothing true
             self.counters.intervals_wheel_rejected += 1
+        elif samples and self._wheel_locked(t0, t1):
+            samples = []  # nor one that stopped faster than the vehicle can
+            self.counters.intervals_wheel_locked += 1
         if samples:
             span = sum(dt for dt, _, _ in samples)
             speed = sum(dt * v for dt, v, _ in samples) / span
@@ -453,6 +458,41 @@ class Localizer:
                                "odometry ignored until it reads motion again")
             return True
         return False
+
+    def _wheel_locked(self, t0: float, t1: float) -> bool:
+        """Whether the wheel is locked over ``[t0, t1]``: its speed dropped faster than
+        ``wheel_lock_decel`` (no vehicle brakes that hard on its tyres; a locked wheel reads
+        0 at once while the vehicle slides on). The lock holds while the wheel reads no
+        more than it did after the drop, for at most the time the vehicle would take to
+        stop from the speed before it at ``no_odometry_accel``: then the wheel's standstill
+        is the vehicle's. Meanwhile the interval has no odometry (the vehicle keeps its
+        motion, give or take that acceleration; the GPS says where it went). It was: a
+        full brake from 3 m/s locked the wheel at 1.8 m/s, the odometry said standstill
+        0.3 m short of the fixes, and the gate took the next fix for a multipath burst."""
+        decel = self.p.wheel_lock_decel
+        if decel <= 0.0:
+            return False
+        pts = self.states.stamped(t0 - self.dt, t1)
+        for (ta, (va, _)), (tb, (vb, _)) in zip(pts, pts[1:]):
+            va, vb = abs(va), abs(vb)
+            if self.wheel_lock is not None and tb > self.wheel_lock[0]:
+                since, until, floor = self.wheel_lock
+                if vb > floor + self.REST_SPEED:
+                    self.wheel_lock = None  # it turns again
+                else:
+                    self.wheel_lock = (since, until, min(floor, vb))
+            if tb > ta and vb < va and (va - vb) / (tb - ta) > decel:
+                until = tb + va / max(self.p.noise.no_odometry_accel, 0.1)
+                if self.wheel_lock is None:
+                    self.wheel_lock = (tb, until, vb)
+                    self.events.append(f"wheel speed dropped from {va:.2f} to {vb:.2f} m/s in {tb - ta:.3f} s at "
+                                       f"{tb:.2f} s: a locked wheel, odometry ignored while it lasts")
+                else:
+                    since, until0, floor = self.wheel_lock
+                    self.wheel_lock = (since, max(until0, until), min(floor, vb))
+        if self.wheel_lock is not None and t0 >= self.wheel_lock[1]:
+            self.wheel_lock = None  # the vehicle has long stopped: the wheel's standstill is its own
+        return self.wheel_lock is not None
 
     def faults(self) -> List[str]:
         """The faults the smoother sees in its inputs now (for /diagnostics), empty when none."""

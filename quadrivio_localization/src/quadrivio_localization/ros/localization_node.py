@@ -212,6 +212,8 @@ class LocalizationNode:
                            ("intervals without gyro", c.intervals_without_gyro),
                            ("intervals with the wheel speed ignored (read 0 while moving)",
                             c.intervals_wheel_rejected),
+                           ("intervals with the wheel locked (its speed dropped faster than wheel_lock_decel)",
+                            c.intervals_wheel_locked),
                            ("bad or out-of-order inputs", c.bad_input + c.out_of_order),
                            ("inputs rejected by the node", self.guard.summary()),
                            ("restarts after the clock moved back", self.resets),
