@@ -235,3 +235,39 @@ def test_a_locked_wheel_is_not_taken_for_standstill_nor_the_fixes_for_multipath(
 def test_no_wheel_lock_in_ordinary_driving(calibrated_run):
     _, loc, _ = calibrated_run
     assert loc.counters.intervals_wheel_locked == 0
+
+
+def test_a_wheel_lock_is_one_event_and_ends_when_the_wheel_turns_or_the_vehicle_must_have_stopped():
+    """plc_drive's full brake at 50 Hz states: the drop comes in steps of 0.02 s. Each step
+    is judged once: re-reading a step against the floor later steps had set released the
+    lock and named a new one per keyframe."""
+    def localizer_with(speeds):
+        loc = Localizer(LocalizerParams(), load_vehicle(), load_site())
+        for t, v in speeds:
+            loc.add_vehicle_state(t, v, 0.0)
+        return loc
+
+    braking = [(21.16 + 0.02 * i, v) for i, v in enumerate([2.9, 2.8, 2.7, 2.6, 2.39, 1.97, 1.31, 0.5, 0.0, 0.0,
+                                                              0.0, 0.0, 0.0])]
+    loc = localizer_with(braking + [(21.42, 0.3), (21.44, 0.6)])  # released, then it turns again
+    locked = [loc._wheel_locked(t0, t0 + 0.05) for t0 in (21.20, 21.25, 21.30, 21.35, 21.40)]
+    assert locked == [False, True, True, True, False]
+    assert len([e for e in loc.pop_events() if "locked wheel" in e]) == 1
+    # the wheel stays at 0: the lock ends once the vehicle would have stopped at 3 m/s^2 from
+    # the speed before the drop (2.39-2.7 m/s: the drop is measured over a keyframe interval)
+    loc = localizer_with(braking + [(21.42 + 0.02 * i, 0.0) for i in range(60)])
+    ends = [t0 for t0 in np.arange(21.25, 22.6, 0.05) if not loc._wheel_locked(t0, t0 + 0.05)]
+    assert ends and 21.26 + 2.39 / 3.0 - 0.05 <= ends[0] <= 21.26 + 2.7 / 3.0 + 0.05
+
+
+def test_wheel_speed_noise_is_no_lock():
+    """An encoder's noise (0.1 m/s at 100 Hz: 14 m/s^2 of apparent deceleration from one
+    sample to the next) must not be taken for a lock, nor told as one: the drop is measured
+    over a keyframe interval. Sample to sample, 0.03 m/s of noise made 3-6 told locks a
+    minute."""
+    rng = np.random.default_rng(3)
+    loc = Localizer(LocalizerParams(), load_vehicle(), load_site())
+    for i in range(6000):
+        loc.add_vehicle_state(0.01 * i, 2.0 + rng.normal(0.0, 0.1), 0.0)
+    assert not any(loc._wheel_locked(t0, t0 + 0.05) for t0 in np.arange(0.0, 59.9, 0.05))
+    assert not loc.pop_events()

@@ -35,6 +35,7 @@ by reason. Every factor's model is in :mod:`quadrivio_localization.factors`.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -153,6 +154,8 @@ class Localizer:
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
         self.wheel_lock: Optional[Tuple[float, float, float]] = None  # a locked wheel: (since, until, speed read)
+        self.wheel_lock_seen = -math.inf  # the newest wheel speed the lock test has seen
+        self.wheel_lock_news = ""  # the event of a drop not confirmed yet by the next wheel speed
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -472,27 +475,40 @@ class Localizer:
         decel = self.p.wheel_lock_decel
         if decel <= 0.0:
             return False
-        pts = self.states.stamped(t0 - self.dt, t1)
-        for (ta, (va, _)), (tb, (vb, _)) in zip(pts, pts[1:]):
-            va, vb = abs(va), abs(vb)
+        # Each drop over a keyframe interval at least (one sample of noise is no deceleration)
+        pts = self.states.stamped(t0 - 2.0 * self.dt, t1)
+        ts = [t for t, _ in pts]
+        for tb, (vb, _) in pts:
+            if tb <= self.wheel_lock_seen:
+                continue  # each wheel speed once, in order
+            self.wheel_lock_seen = tb
+            vb = abs(vb)
             if self.wheel_lock is not None and tb > self.wheel_lock[0]:
                 since, until, floor = self.wheel_lock
                 if vb > floor + self.REST_SPEED:
                     self.wheel_lock = None  # it turns again
                 else:
                     self.wheel_lock = (since, until, min(floor, vb))
+                    if self.wheel_lock_news:  # it stayed down: a lock
+                        self.events.append(self.wheel_lock_news)
+                        self.wheel_lock_news = ""
+            i = bisect.bisect_right(ts, tb - self.dt + 1e-9) - 1
+            if i < 0:
+                continue
+            ta, va = ts[i], abs(pts[i][1][0])
             if tb > ta and vb < va and (va - vb) / (tb - ta) > decel:
                 until = tb + va / max(self.p.noise.no_odometry_accel, 0.1)
                 if self.wheel_lock is None:
                     self.wheel_lock = (tb, until, vb)
-                    self.events.append(f"wheel speed dropped from {va:.2f} to {vb:.2f} m/s in {tb - ta:.3f} s at "
-                                       f"{tb:.2f} s: a locked wheel, odometry ignored while it lasts")
+                    self.wheel_lock_news = (f"wheel speed dropped from {va:.2f} to {vb:.2f} m/s in {tb - ta:.3f} s "
+                                            f"at {tb:.2f} s: a locked wheel, odometry ignored while it lasts")
                 else:
                     since, until0, floor = self.wheel_lock
                     self.wheel_lock = (since, max(until0, until), min(floor, vb))
         if self.wheel_lock is not None and t0 >= self.wheel_lock[1]:
             self.wheel_lock = None  # the vehicle has long stopped: the wheel's standstill is its own
-        return self.wheel_lock is not None
+        # a drop is a lock once the next wheel speed stays down too (until then it is told, not believed)
+        return self.wheel_lock is not None and not self.wheel_lock_news
 
     def faults(self) -> List[str]:
         """The faults the smoother sees in its inputs now (for /diagnostics), empty when none."""
