@@ -13,7 +13,8 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   ``loop_hold_budget`` wall seconds per stall (then time runs on and the PLC's watchdog
   brakes): the simulator slows to what the closed loop sustains instead of letting it act
   on stale data (``pacing.LoopHold``). At factor 1, and in lockstep, never.
-* ``~stale_slowdown`` (dict, ``{localization/odom: 0.2, localization/predicted: 0.1}``)
+* ``~stale_slowdown`` (dict, ``{localization/odom: 0.2, localization/predicted: 0.08,
+  vehicle/setpoint/auto: 0.08}``)
   and ``~stale_slowdown_budget`` (float, 2.0): above factor 1 (or as fast as possible),
   while the PLC drives and the newest message of one of these stamped topics is older
   than its limit (sim s), run at real time, where the stack keeps its sim-time deadlines
@@ -93,7 +94,12 @@ class NodeParams:
                                  "drives on are older than this (sim s; below the PLC watchdog); 0: never")
     loop_hold_budget: float = param(0.5, lo=0.0, hi=60.0, unit="s",
                                     doc="wall seconds one such wait may last before time runs on (the watchdog brakes)")
-    stale_slowdown: Dict[str, float] = param({"localization/odom": 0.2, "localization/predicted": 0.1}, lo=0.0,
+    # 0.08 s, 4 periods of the 50 Hz topics: the slowdown reacts within a step, so a gap ends
+    # below the 5 periods the contract allows. The follower's setpoints are watched here, not
+    # by the loop hold: the PLC client repeats the last one for setpoint_timeout (0.25 s), so
+    # the PLC's watchdog reference stays fresh while the follower is silent.
+    stale_slowdown: Dict[str, float] = param({"localization/odom": 0.2, "localization/predicted": 0.08,
+                                              "vehicle/setpoint/auto": 0.08}, lo=0.0,
                                              hi=60.0, unit="s",
                                              doc="above factor 1: run at real time while the newest message of one "
                                                  "of these stamped topics is older than this (sim s); {}: never")
