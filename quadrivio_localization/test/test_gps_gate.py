@@ -109,3 +109,43 @@ def test_status_floors_a_fix_that_claims_too_much():
     assert p.status_floor(2) == pytest.approx(1e-4)
     assert p.status_floor(7) == p.status_floor(2) and p.status_floor(-3) == p.status_floor(0)
     assert math.isfinite(GpsGate(p).last_d2) is False
+
+
+def test_a_jump_of_the_estimates_own_making_ends_when_the_estimate_can_no_longer_tell():
+    """A wheel that slid: the estimate fell 0.3 m behind in one step and dead-reckons on from
+    there, its uncertainty growing; the fixes, right all along, never 'jump back'. They were
+    held out for yield_after (30 s); they are taken again once the estimate is unsure enough
+    that a fix 0.3 m away is no news to it."""
+    g = settled_gate(group=0.0)
+    R = np.eye(2) * 0.03 ** 2
+    Q = np.eye(2) * 1e-4
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), np.eye(2) * 0.02 ** 2, R, (), (np.zeros(2), R, R, Q)).use
+        t += 0.2
+    slid = np.array([0.3, 0.0])
+    verdicts = []
+    for i in range(100):  # 20 s at 5 Hz, the estimate's std growing 2 cm a second
+        P = np.eye(2) * (0.02 + 0.02 * 0.2 * i) ** 2
+        verdicts.append(g.decide(t, slid, P, R, (), (slid if i == 0 else np.zeros(2), R, R, Q)))
+        t += 0.2
+    assert not verdicts[0].use and verdicts[0].reason == MULTIPATH  # it did look like a burst
+    back = next(i for i, v in enumerate(verdicts) if v.use)
+    assert 3.0 <= 0.2 * back <= 8.0, back  # std 0.08-0.18 m: 0.3 m within jump_gate / 4
+    assert all(v.use for v in verdicts[back:]) and g.yielded == 0
+
+
+def test_a_sure_estimate_keeps_a_jump_burst_out():
+    """The same step of 1.2 m against an estimate that stays sure (std 3 cm): multipath, held
+    out until it jumps back."""
+    g = settled_gate(group=0.0)
+    R, P, Q = np.eye(2) * 0.03 ** 2, np.eye(2) * 0.03 ** 2, np.eye(2) * 1e-4
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
+        t += 0.2
+    off = np.array([1.2, 0.0])
+    during = [g.decide(t + 0.2 * i, off, P, R, (), (off if i == 0 else np.zeros(2), R, R, Q)) for i in range(50)]
+    assert not any(v.use for v in during)
+    after = g.decide(t + 10.0, np.zeros(2), P, R, (), (-off, R, R, Q))
+    assert after.use and g.burst is None

@@ -32,7 +32,10 @@ Two tests, each by its own reason:
   ``jump_window`` s before): the step of the fixes minus the step of the estimated antenna,
   against both fixes' covariances plus the odometry's over the step. A precise receiver's
   burst starts with a step of many sigmas; the burst's offset is then followed fix to fix
-  and the burst ends when the offset returns (under ``jump_gate / 4``), when the fixes stop
+  and the burst ends when the offset returns (under ``jump_gate / 4``), when a fix sits
+  with the estimate within ``jump_gate / 4`` of ``P + R`` (the estimate, its uncertainty
+  grown as it dead-reckons or already as large as the offset, cannot call the fix wrong:
+  a "burst" opened by the estimate's own error never jumps back), when the fixes stop
   for longer than ``jump_window`` (an outage ends it: nothing is held across one), or
   after ``yield_after``. A noisy receiver's steps are too noisy for this test; the group
   test catches its bursts.
@@ -176,6 +179,14 @@ class GpsGate:
         estimated motion's), None without a previous fix; ``behind``: (innovation, fix
         covariance) of the fixes of the previous ``group`` seconds, against the same estimate."""
         jumped = self._jump(t, step)
+        if jumped and self.settled and mahalanobis2(nu, P + R) < self.p.jump_gate / 4.0:
+            # The fix sits with the estimate, within what the estimate itself is unsure of:
+            # whatever jumped, the estimate cannot tell the fix wrong. A burst born of the
+            # estimate's own error (a wheel that slid, a heading that had wandered) never
+            # "jumps back": it held every fix out for yield_after (30 s) while the estimate
+            # dead-reckoned on the error that had opened it.
+            self.burst = None
+            jumped = False
         verdict = Verdict(False, MULTIPATH, math.nan) if jumped else self._test(nu, P, R, group, behind)
         if verdict.use:
             self.rejecting_since = None
