@@ -241,18 +241,24 @@ class ImuNoiseParams:
 class ImuNoise:
     def __init__(self, p: ImuNoiseParams, rng: np.random.Generator, dt: float) -> None:
         self.p, self.rng, self.dt = p, rng, dt
-        self.gyro_bias = rng.normal(0.0, p.gyroscope_turn_on_bias, 3)
-        self.accel_bias = rng.normal(0.0, p.accelerometer_turn_on_bias, 3)
+        self.gyro_bias = tuple(rng.normal(0.0, p.gyroscope_turn_on_bias, 3).tolist())  # [rad/s] x, y, z
+        self.accel_bias = tuple(rng.normal(0.0, p.accelerometer_turn_on_bias, 3).tolist())  # [m/s^2]
         self.gyro_std = p.gyroscope_noise_density / math.sqrt(dt)  # per sample
         self.accel_std = p.accelerometer_noise_density / math.sqrt(dt)
 
-    def apply(self, specific_force: Sequence[float], rate: Sequence[float]) -> Tuple[np.ndarray, np.ndarray]:
-        n = self.rng.normal(0.0, 1.0, 12)
+    def apply(self, specific_force: Sequence[float], rate: Sequence[float]) -> Tuple[Tuple[float, ...], Tuple[float, ...]]:
+        """``(specific force, angular rate)`` as read. In plain floats, the same operations in
+        the same order as numpy's on 3-vectors (the same readings to the bit): at 100 Hz the
+        array version was the adapter process's largest Python cost (14 % of its samples)."""
+        n = self.rng.normal(0.0, 1.0, 12).tolist()
         sq = math.sqrt(self.dt)
-        self.gyro_bias = self.gyro_bias + self.p.gyroscope_random_walk * sq * n[6:9]
-        self.accel_bias = self.accel_bias + self.p.accelerometer_random_walk * sq * n[9:12]
-        w = np.asarray(rate, dtype=float) + self.gyro_bias + self.gyro_std * n[0:3]
-        f = np.asarray(specific_force, dtype=float) + self.accel_bias + self.accel_std * n[3:6]
+        kg, ka = self.p.gyroscope_random_walk * sq, self.p.accelerometer_random_walk * sq
+        gb = tuple(b + kg * x for b, x in zip(self.gyro_bias, n[6:9]))
+        ab = tuple(b + ka * x for b, x in zip(self.accel_bias, n[9:12]))
+        self.gyro_bias, self.accel_bias = gb, ab
+        sg, sa = self.gyro_std, self.accel_std
+        w = tuple(float(r) + b + sg * x for r, b, x in zip(rate, gb, n[0:3]))
+        f = tuple(float(a) + b + sa * x for a, b, x in zip(specific_force, ab, n[3:6]))
         return f, w
 
     @property
