@@ -35,7 +35,6 @@ by reason. Every factor's model is in :mod:`quadrivio_localization.factors`.
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -57,6 +56,7 @@ __all__ = ["Localizer", "Estimate", "Counters", "CALIBRATION_NAMES", "Calibratio
            "MagCalibration", "NoiseParams", "Prior"]
 from .buffers import SampleBuffer
 from .leveling import Leveller, lowpass
+from .wheel_lock import WheelLock
 from .window import FixedLagWindow
 
 X = gtsam.symbol_shorthand.X  # poses
@@ -153,9 +153,7 @@ class Localizer:
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
-        self.wheel_lock: Optional[Tuple[float, float, float]] = None  # a locked wheel: (since, until, speed read)
-        self.wheel_lock_seen = -math.inf  # the newest wheel speed the lock test has seen
-        self.wheel_lock_news = ""  # the event of a drop not confirmed yet by the next wheel speed
+        self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -463,52 +461,13 @@ class Localizer:
         return False
 
     def _wheel_locked(self, t0: float, t1: float) -> bool:
-        """Whether the wheel is locked over ``[t0, t1]``: its speed dropped faster than
-        ``wheel_lock_decel`` (no vehicle brakes that hard on its tyres; a locked wheel reads
-        0 at once while the vehicle slides on). The lock holds while the wheel reads no
-        more than it did after the drop, for at most the time the vehicle would take to
-        stop from the speed before it at ``no_odometry_accel``: then the wheel's standstill
-        is the vehicle's. Meanwhile the interval has no odometry (the vehicle keeps its
-        motion, give or take that acceleration; the GPS says where it went). It was: a
-        full brake from 3 m/s locked the wheel at 1.8 m/s, the odometry said standstill
-        0.3 m short of the fixes, and the gate took the next fix for a multipath burst."""
-        decel = self.p.wheel_lock_decel
-        if decel <= 0.0:
-            return False
-        # Each drop over a keyframe interval at least (one sample of noise is no deceleration)
-        pts = self.states.stamped(t0 - 2.0 * self.dt, t1)
-        ts = [t for t, _ in pts]
-        for tb, (vb, _) in pts:
-            if tb <= self.wheel_lock_seen:
-                continue  # each wheel speed once, in order
-            self.wheel_lock_seen = tb
-            vb = abs(vb)
-            if self.wheel_lock is not None and tb > self.wheel_lock[0]:
-                since, until, floor = self.wheel_lock
-                if vb > floor + self.REST_SPEED:
-                    self.wheel_lock = None  # it turns again
-                else:
-                    self.wheel_lock = (since, until, min(floor, vb))
-                    if self.wheel_lock_news:  # it stayed down: a lock
-                        self.events.append(self.wheel_lock_news)
-                        self.wheel_lock_news = ""
-            i = bisect.bisect_right(ts, tb - self.dt + 1e-9) - 1
-            if i < 0:
-                continue
-            ta, va = ts[i], abs(pts[i][1][0])
-            if tb > ta and vb < va and (va - vb) / (tb - ta) > decel:
-                until = tb + va / max(self.p.noise.no_odometry_accel, 0.1)
-                if self.wheel_lock is None:
-                    self.wheel_lock = (tb, until, vb)
-                    self.wheel_lock_news = (f"wheel speed dropped from {va:.2f} to {vb:.2f} m/s in {tb - ta:.3f} s "
-                                            f"at {tb:.2f} s: a locked wheel, odometry ignored while it lasts")
-                else:
-                    since, until0, floor = self.wheel_lock
-                    self.wheel_lock = (since, max(until0, until), min(floor, vb))
-        if self.wheel_lock is not None and t0 >= self.wheel_lock[1]:
-            self.wheel_lock = None  # the vehicle has long stopped: the wheel's standstill is its own
-        # a drop is a lock once the next wheel speed stays down too (until then it is told, not believed)
-        return self.wheel_lock is not None and not self.wheel_lock_news
+        """Whether the wheel is locked over ``[t0, t1]`` (:mod:`.wheel_lock`); meanwhile the
+        interval has no odometry (the vehicle keeps its motion, give or take
+        ``no_odometry_accel``; the GPS says where it went)."""
+        locked, events = self.wheel_lock.update(
+            [(t, v) for t, (v, _) in self.states.stamped(t0 - 2.0 * self.dt, t1)], t0)
+        self.events.extend(events)
+        return locked
 
     def faults(self) -> List[str]:
         """The faults the smoother sees in its inputs now (for /diagnostics), empty when none."""

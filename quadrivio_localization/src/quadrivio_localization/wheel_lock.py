@@ -1,0 +1,71 @@
+"""A locked wheel: a wheel speed that drops faster than any vehicle brakes on its tyres.
+
+Under a full brake a wheel can lock: it reads 0 at once while the vehicle slides on.
+Believed, that standstill falls short of where the vehicle went (0.3 m on a full brake
+from 3 m/s in the simulator), and the GPS gate took the next fix for a multipath burst.
+
+A drop is measured over ``span`` s at least (one sample of an encoder's noise is no
+deceleration) and is a lock once the next wheel speed stays down too. The lock holds
+while the wheel reads no more than it did after the drop (by ``rest_speed``), for at most
+the time the vehicle would take to stop from the speed before the drop at ``stop_accel``:
+then the wheel's standstill is the vehicle's. Each wheel speed is judged once, in order.
+
+Pure and ROS-free; the smoother feeds it its buffered wheel speeds.
+"""
+
+from __future__ import annotations
+
+import bisect
+from typing import List, Optional, Sequence, Tuple
+
+
+class WheelLock:
+    def __init__(self, decel: float, stop_accel: float, rest_speed: float, span: float) -> None:
+        self.decel = decel  # [m/s^2] a faster drop is a lock (0: never)
+        self.stop_accel = max(stop_accel, 0.1)  # [m/s^2] the vehicle stops at least this fast
+        self.rest_speed = rest_speed  # [m/s] the wheel turns again when it reads this much more
+        self.span = span  # [s] the shortest interval a drop is measured over
+        self.seen = -float("inf")  # the newest wheel speed judged
+        self.since: Optional[float] = None  # the drop's time, None without a lock
+        self.until = 0.0  # the lock ends here at the latest
+        self.floor = 0.0  # the lowest wheel speed read since the drop
+        self.confirmed = False  # the wheel speed after the drop stayed down
+        self.drop: Tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # (ta, va, tb, vb) of the drop
+
+    def update(self, speeds: Sequence[Tuple[float, float]], t0: float) -> Tuple[bool, List[str]]:
+        """Judge the wheel speeds ``(t, v)`` not judged yet (``speeds`` in time order, reaching
+        ``span`` s before the first new one); whether the wheel is locked for the interval
+        starting at ``t0``, and the events to log (a lock, once confirmed)."""
+        events: List[str] = []
+        if self.decel <= 0.0:
+            return False, events
+        ts = [t for t, _ in speeds]
+        for tb, vb in speeds:
+            if tb <= self.seen:
+                continue
+            self.seen = tb
+            vb = abs(vb)
+            if self.since is not None and tb > self.since:
+                if vb > self.floor + self.rest_speed:
+                    self.since = None  # it turns again
+                else:
+                    self.floor = min(self.floor, vb)
+                    if not self.confirmed:  # it stayed down: a lock
+                        self.confirmed = True
+                        ta, va, tdrop, vdrop = self.drop
+                        events.append(f"wheel speed dropped from {va:.2f} to {vdrop:.2f} m/s in {tdrop - ta:.3f} s "
+                                      f"at {tdrop:.2f} s: a locked wheel, odometry ignored while it lasts")
+            i = bisect.bisect_right(ts, tb - self.span + 1e-9) - 1
+            if i < 0:
+                continue
+            ta, va = ts[i], abs(speeds[i][1])
+            if tb > ta and vb < va and (va - vb) / (tb - ta) > self.decel:
+                until = tb + va / self.stop_accel
+                if self.since is None:
+                    self.since, self.until, self.floor, self.confirmed = tb, until, vb, False
+                    self.drop = (ta, va, tb, vb)
+                else:
+                    self.until, self.floor = max(self.until, until), min(self.floor, vb)
+        if self.since is not None and t0 >= self.until:
+            self.since = None  # the vehicle has long stopped: the wheel's standstill is its own
+        return self.since is not None and self.confirmed, events
