@@ -178,3 +178,48 @@ def test_a_sim_time_timer_keeps_its_period_and_a_slow_one_delays_no_other(sim_ti
             t.shutdown()
             t.join(5.0)
     assert not t1.is_alive() and not t2.is_alive()
+
+
+def test_an_inline_timer_runs_in_the_ticking_thread_on_its_schedule():
+    """InlineTimer: called by the beat's tick itself (no thread of its own) at the
+    multiples of its period, a new period after time moves back or falls far behind."""
+    now = [int(10e9)]
+    beat = T.SimBeat(now=lambda: now[0], cond=threading.Condition())
+    beat.started = True  # ticks come from this test, not from /clock or the beat's thread
+    calls = []
+    timer = T.InlineTimer(0.05, lambda _e: calls.append((now[0], threading.current_thread())), beat)
+    for k in range(1, 21):  # 10 ms ticks for 0.2 s
+        now[0] = int(10e9) + k * int(10e6)
+        beat.tick(now[0])
+    assert [c[0] for c in calls] == [int(10.05e9), int(10.10e9), int(10.15e9), int(10.20e9)]
+    assert {c[1] for c in calls} == {threading.current_thread()}
+    now[0] = int(3e9)  # time moves back: no call now, then every 50 ms from there
+    beat.tick(now[0])
+    assert len(calls) == 4
+    now[0] = int(3.04e9)
+    beat.tick(now[0])
+    now[0] = int(3.05e9)
+    beat.tick(now[0])
+    assert calls[-1][0] == int(3.05e9) and len(calls) == 5
+    now[0] = int(9e9)  # far behind: one call, then a period from now (no burst)
+    beat.tick(now[0])
+    beat.tick(now[0])
+    now[0] = int(9.04e9)
+    beat.tick(now[0])
+    assert [c[0] for c in calls[5:]] == [int(9e9)]
+    timer.shutdown()
+    now[0] = int(9.2e9)
+    beat.tick(now[0])
+    assert len(calls) == 6 and not timer.is_alive()
+
+
+def test_guarded_timer_inline_in_sim_time(sim_time):
+    got = []
+    t = guarded_timer(0.01, lambda e: got.append(rospy.get_time()), "inline", inline=True)
+    assert isinstance(t, T.InlineTimer)
+    try:
+        wait(lambda: len(got) >= 30)
+        rate = (len(got) - 1) / (got[-1] - got[0])
+        assert 50.0 < rate < 105.0, rate
+    finally:
+        t.shutdown()

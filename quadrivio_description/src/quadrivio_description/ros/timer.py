@@ -25,11 +25,16 @@ import rospy
 from ..guards import InputGuard
 
 
-def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str):
+def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str,
+                  inline: bool = False):
     """``rospy.Timer(rospy.Duration(period), callback)`` whose exceptions are logged, not
     fatal, and which goes on after /clock jumps back. In lockstep (a member that called
     ``lockstep.install()``) it runs in the simulator's rounds instead, at the multiples of
-    ``period`` in sim time."""
+    ``period`` in sim time.
+
+    ``inline``: in sim time, call it in the thread that receives /clock instead of a thread
+    of its own (:class:`InlineTimer`: no thread wake-up per period; for short callbacks
+    that must not block, as they delay every other sim-time timer of the process)."""
 
     def run(event) -> None:
         check_clock()
@@ -46,7 +51,7 @@ def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], No
     if m is not None:  # run in the simulator's rounds (see lockstep.py), not on a thread
         return m.add_timer(period, run)
     if not rospy.rostime.is_wallclock():
-        return SimTimer(period, run, _beat())
+        return InlineTimer(period, run, _beat()) if inline else SimTimer(period, run, _beat())
     return rospy.Timer(rospy.Duration(period), run, reset=True)
 
 
@@ -72,6 +77,7 @@ class SimBeat:
         self.on_clock = on_clock
         self.lock = threading.Lock()
         self.waiting: List[list] = []  # [due_ns, event, ROS time when it began to wait]
+        self.inline: List["InlineTimer"] = []
         self.thread: Optional[threading.Thread] = None
         self.started = False
         self.closed = False
@@ -84,26 +90,39 @@ class SimBeat:
             if now >= due_ns or self.closed:
                 return now
             self.waiting.append([due_ns, event, now])
-            if not self.started:
-                self.started = True
-                if self.on_clock:
-                    from rosgraph_msgs.msg import Clock
-                    rospy.Subscriber("/clock", Clock, lambda _m: self.tick(self.now()), queue_size=1)
-                else:
-                    self.thread = threading.Thread(target=self._loop, name="sim_beat", daemon=True)
-                    self.thread.start()
+            self._start()
         while not event.wait(0.5):
             if stop():
                 break
         return self.now()
 
+    def add_inline(self, timer: "InlineTimer") -> None:
+        with self.lock:
+            self.inline.append(timer)
+            self._start()
+
+    def _start(self) -> None:  # under self.lock
+        if self.started:
+            return
+        self.started = True
+        if self.on_clock:
+            from rosgraph_msgs.msg import Clock
+            rospy.Subscriber("/clock", Clock, lambda _m: self.tick(self.now()), queue_size=1)
+        else:
+            self.thread = threading.Thread(target=self._loop, name="sim_beat", daemon=True)
+            self.thread.start()
+
     def tick(self, now: int) -> None:
-        """Release the waiters that are due at ``now``, and all of them if time moved back."""
+        """Release the waiters that are due at ``now``, and all of them if time moved back;
+        then run the inline timers that are due."""
         with self.lock:
             due = [w for w in self.waiting if now >= w[0] or now < w[2]]
             self.waiting = [w for w in self.waiting if not (now >= w[0] or now < w[2])]
+            inline = list(self.inline)
         for w in due:
             w[1].set()
+        for timer in inline:
+            timer.tick(now)
 
     def close(self) -> None:
         """Stop the thread and release every waiter."""
@@ -167,6 +186,40 @@ class SimTimer:
             due += self.period_ns
             if now - due > 2 * self.period_ns:
                 due = now + self.period_ns
+
+
+class InlineTimer:
+    """A sim-time timer called by :class:`SimBeat` in the thread that delivers the clock
+    ticks (in a node, rospy's /clock subscriber thread), with :class:`SimTimer`'s schedule:
+    ``callback(None)`` every ``period`` of ROS time, a new period from now when time moves
+    back or the timer falls more than two periods behind. It costs no thread wake-up per
+    period; the callback delays the process's other sim-time timers while it runs."""
+
+    def __init__(self, period: float, callback: Callable, beat: SimBeat) -> None:
+        self.period_ns = int(round(period * 1e9))
+        self.callback, self.beat = callback, beat
+        self._shutdown = False
+        self.due = beat.now() + self.period_ns
+        beat.add_inline(self)
+
+    def shutdown(self) -> None:
+        self._shutdown = True
+
+    def is_alive(self) -> bool:
+        return not (self._shutdown or self.beat.closed)
+
+    def tick(self, now: int) -> None:
+        if self._shutdown or rospy.core.is_shutdown_requested():
+            return
+        if now < self.due - self.period_ns:  # time moved back: a new period from now
+            self.due = now + self.period_ns
+            return
+        if now < self.due:
+            return
+        self.callback(None)
+        self.due += self.period_ns
+        if now - self.due > 2 * self.period_ns:
+            self.due = now + self.period_ns
 
 
 _BEAT: Optional[SimBeat] = None

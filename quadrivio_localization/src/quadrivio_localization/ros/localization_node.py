@@ -32,6 +32,7 @@ from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
@@ -64,7 +65,7 @@ class LocalizationNode:
         self.guard = input_guard(self.np.max_future)
         self.resets = 0
         self._fresh_state()
-        self.pub_odom = rospy.Publisher("localization/odom", Odometry, queue_size=20)
+        self.pub_odom = direct_publisher("localization/odom", Odometry, queue_size=20)
         self.pub_cal = rospy.Publisher("localization/calibration", Calibration, queue_size=5, latch=True)
         self.tf = tf2_ros.TransformBroadcaster() if self.np.publish_tf else None
         self.update_ms = []

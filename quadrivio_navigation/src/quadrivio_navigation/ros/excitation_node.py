@@ -23,6 +23,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from quadrivio_description.config import ConfigError
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import fatal, node_params, with_scenario
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
@@ -42,7 +43,7 @@ class ExcitationNode:
         self.stopped = ""  # why the program was cut short
         self.done = False
         self.mode = -1
-        self.pub = rospy.Publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
+        self.pub = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         on_clock_jump(self._on_clock_jump)
         self.diag = diagnostics.updater()

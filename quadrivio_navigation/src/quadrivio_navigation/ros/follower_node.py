@@ -35,6 +35,7 @@ from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import node_params, vehicle_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint
@@ -54,8 +55,8 @@ class FollowerNode:
         self.guard = input_guard()
         self.pose: Optional[Odometry] = None
         self.last_status = None
-        self.pub_sp = rospy.Publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
-        self.pub_status = rospy.Publisher("follower/status", FollowerStatus, queue_size=10)
+        self.pub_sp = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
+        self.pub_status = direct_publisher("follower/status", FollowerStatus, queue_size=10)
         rospy.Subscriber("planner/path", PathMsg, self._on_path, queue_size=1)
         rospy.Subscriber("planner/status", PlannerStatus, self._on_planner, queue_size=5)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)

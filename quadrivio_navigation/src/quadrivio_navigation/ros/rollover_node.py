@@ -24,6 +24,7 @@ from sensor_msgs.msg import Imu
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
@@ -47,7 +48,7 @@ class RolloverNode:
         self.mount = vehicle.sensors["imu_link"].rpy
         self.monitor = RolloverMonitor(self.p, self.ssf)
         self.guard = input_guard()
-        self.pub = rospy.Publisher("safety/rollover", RolloverRisk, queue_size=20)
+        self.pub = direct_publisher("safety/rollover", RolloverRisk, queue_size=20)
         self.pub_interlock = None
         if self.np.stop_on_trip:
             from quadrivio_plc.msg import Interlock

@@ -34,6 +34,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from quadrivio_description.config import param
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import node_params, private_params, split_params
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
@@ -67,7 +68,7 @@ class PlcClientNode:
         self.link_down_published = -1e9
         shared = self.p.plc_clock == "ros" or (self.p.plc_clock == "auto" and bool(rospy.get_param("/use_sim_time", False)))
         self.clock = PlcClock(shared=shared)
-        self.pub_state = rospy.Publisher("vehicle/state", VehicleState, queue_size=50)
+        self.pub_state = direct_publisher("vehicle/state", VehicleState, queue_size=50)
         on_state, on_ack = self._on_state, self._on_ack
         self.lockstep = lockstep.member()
         if self.lockstep is not None:

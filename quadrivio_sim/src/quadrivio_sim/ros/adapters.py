@@ -22,6 +22,11 @@ a pseudo-terminal or TCP), ``imu`` (sim/imu -> imu/data Imu), ``mag`` (sim/mag -
 imu/mag MagneticField), ``laser`` (scan_in -> scan LaserScan), ``camera`` (image_in,
 camera_info_in -> image_raw, camera_info). All topic names are relative, remapped in launch.
 
+Publishing. Each output is written to its subscribers in the delivering thread while they
+keep up (``quadrivio_description.ros.direct``), with the queue sizes a real driver's
+publisher has only for a subscriber that falls behind; readings are delivered by the
+thread that receives /clock (no thread wake-up per tick).
+
 Processes. ``sensor_adapters`` hosts several adapters in one process, still outside the
 simulator (the paper's layer 2), which is how ``adapters.launch`` runs them: every Python
 process pays for each /clock tick, its timer threads and its connections, whatever it
@@ -53,6 +58,7 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
 from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
@@ -169,7 +175,9 @@ class Host:
     def start(self) -> None:
         delayed = [o for o in self.outputs if not o.latency.zero]
         if delayed:
-            guarded_timer(min(o.release_period for o in delayed), self._drain, "delayed delivery")
+            # In the thread that receives /clock: no thread wake-up per tick just to find
+            # (mostly) one reading due; a drain is a few publications into rospy's queues
+            guarded_timer(min(o.release_period for o in delayed), self._drain, "delayed delivery", inline=True)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
 
     def _drain(self, _event) -> None:
@@ -199,8 +207,8 @@ class GpsAdapter:
         if self.nmea is not None:
             rospy.loginfo("NMEA output on %s", self.nmea.address)
             rospy.on_shutdown(self.nmea.close)
-        self.pub_fix = rospy.Publisher(slot.topic("gps/fix"), NavSatFix, queue_size=10) if self.p.publish_fix else None
-        self.pub_vel = rospy.Publisher(slot.topic("gps/vel"), TwistStamped, queue_size=10) if self.p.publish_fix else None
+        self.pub_fix = direct_publisher(slot.topic("gps/fix"), NavSatFix, queue_size=10) if self.p.publish_fix else None
+        self.pub_vel = direct_publisher(slot.topic("gps/vel"), TwistStamped, queue_size=10) if self.p.publish_fix else None
         self.input = rospy.resolve_name(slot.topic("sim/gps"))  # remapped: for error messages
         rospy.Subscriber(self.input, RawGps, self._on_raw, queue_size=100)
 
@@ -250,7 +258,7 @@ class ImuAdapter:
         self.slot = slot
         self.p = slot.params(ImuAdapterParams, "sensors/imu")
         self.out = host.output(slot, self._build, self.p.release_period)
-        self.pub = rospy.Publisher(slot.topic("imu/data"), Imu, queue_size=100)
+        self.pub = direct_publisher(slot.topic("imu/data"), Imu, queue_size=100)
         self.input = rospy.resolve_name(slot.topic("sim/imu"))  # remapped: for error messages
         rospy.Subscriber(self.input, Imu, self._on_raw, queue_size=200)
 
@@ -284,7 +292,7 @@ class MagAdapter:
         self.slot = slot
         self.p = slot.params(MagAdapterParams, "sensors/mag")
         self.out = host.output(slot, self._build, self.p.release_period)
-        self.pub = rospy.Publisher(slot.topic("imu/mag"), MagneticField, queue_size=50)
+        self.pub = direct_publisher(slot.topic("imu/mag"), MagneticField, queue_size=50)
         self.input = rospy.resolve_name(slot.topic("sim/mag"))  # remapped: for error messages
         rospy.Subscriber(self.input, MagneticField, self._on_raw, queue_size=100)
 
@@ -315,7 +323,7 @@ class LaserAdapter:
         self.slot = slot
         self.p = slot.params(LaserAdapterParams, f"sensors/{slot.short}")
         self.out = host.output(slot, self._build, self.p.release_period)
-        self.pub = rospy.Publisher(slot.topic("scan"), LaserScan, queue_size=10)
+        self.pub = direct_publisher(slot.topic("scan"), LaserScan, queue_size=10)
         self.input = rospy.resolve_name(slot.topic("scan_in"))  # remapped: for error messages
         rospy.Subscriber(self.input, LaserScan, self._on_raw, queue_size=20)
 

@@ -50,7 +50,6 @@ import queue
 import signal
 import threading
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Callable, Dict, Optional
 
@@ -64,6 +63,7 @@ from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param
 from quadrivio_description.ros import diagnostics
+from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, site_params,
                                              split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
@@ -182,17 +182,16 @@ class SimNode:
             # Only the header's stamp is read, from the serialised message (no deserialisation)
             rospy.Subscriber(topic, rospy.AnyMsg, self._on_watched, callback_args=topic, queue_size=1)
 
-        with warnings.catch_warnings():
-            # Synchronous on purpose: no writer thread per subscriber (each /clock tick would
-            # hand the GIL over once per node), ticks delivered in order, never dropped.
-            warnings.filterwarnings("ignore", message="The publisher should be created", category=SyntaxWarning)
-            self.pub_clock = rospy.Publisher("/clock", Clock, queue_size=None)
-        self.pub_gt = rospy.Publisher("ground_truth/odom", Odometry, queue_size=50)
-        self.pub_joints = rospy.Publisher("joint_states", JointState, queue_size=10)
-        self.pub_gps = rospy.Publisher("sim/gps", RawGps, queue_size=50)
-        self.pub_imu = rospy.Publisher("sim/imu", Imu, queue_size=200)
-        self.pub_mag = rospy.Publisher("sim/mag", MagneticField, queue_size=100)
-        self.pub_scan = {f: rospy.Publisher(f"sim/scan/{f.replace('laser_', '')}", LaserScan, queue_size=10)
+        # Written in this thread while each subscriber keeps up, not by a writer thread per
+        # subscriber (a thread wake-up per message and subscriber: see
+        # quadrivio_description.ros.direct); queued for a subscriber only while it is behind.
+        self.pub_clock = direct_publisher("/clock", Clock, queue_size=1000)
+        self.pub_gt = direct_publisher("ground_truth/odom", Odometry, queue_size=50)
+        self.pub_joints = direct_publisher("joint_states", JointState, queue_size=10)
+        self.pub_gps = direct_publisher("sim/gps", RawGps, queue_size=50)
+        self.pub_imu = direct_publisher("sim/imu", Imu, queue_size=200)
+        self.pub_mag = direct_publisher("sim/mag", MagneticField, queue_size=100)
+        self.pub_scan = {f: direct_publisher(f"sim/scan/{f.replace('laser_', '')}", LaserScan, queue_size=10)
                          for f in self.sim_params.sensors.lasers.frames}
         self.pub_image = {f: rospy.Publisher(f"sim/stereo/{f.replace('camera_', '')}/image_raw", Image, queue_size=2)
                           for f in self.sim_params.sensors.cameras.frames} if self.sim.cameras else {}
