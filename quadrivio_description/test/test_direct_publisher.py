@@ -176,3 +176,16 @@ def test_in_place_wraps_the_connections_it_already_has(publisher):
     assert c == c._connection and c.endpoint_id == "early"
     a.close()
     pa.close()
+
+
+def test_a_queued_publisher_of_the_same_topic_made_later_adds_no_writer_thread(publisher):
+    """rospy shares one implementation per topic: a later Publisher(queue_size=N) sets its
+    queue size, which must not wrap new subscribers in rospy's QueuedConnection."""
+    in_place(publisher, queue_size=5)
+    publisher.set_queue_size(100)
+    a, pa = tcp_pair(small_buffers=False)
+    publisher.add_connection(transport(a, "late"))
+    (c,) = publisher.connections
+    assert type(c) is InPlaceConnection and publisher.queue_size == 100
+    a.close()
+    pa.close()

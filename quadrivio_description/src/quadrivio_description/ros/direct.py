@@ -157,7 +157,13 @@ def in_place(impl, queue_size: int) -> None:
     add = impl.add_connection  # rospy's own, bound
 
     def add_connection(c):
-        return add(c if isinstance(c, InPlaceConnection) else InPlaceConnection(c, queue_size))
+        # A publisher of the topic created later in this process with a queue_size sets
+        # the shared implementation's: rospy would then wrap this one in a writer thread too
+        queued, impl.queue_size = impl.queue_size, None
+        try:
+            return add(c if isinstance(c, InPlaceConnection) else InPlaceConnection(c, queue_size))
+        finally:
+            impl.queue_size = queued
 
     with impl.c_lock:
         impl.add_connection = add_connection  # rospy's TCPROS handler calls topic.add_connection
