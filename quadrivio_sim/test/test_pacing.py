@@ -176,3 +176,31 @@ def test_stale_slowdown_bad_parameters_are_named():
         StaleSlowdown({"localization/odom": -0.1}, 2.0)
     with pytest.raises(ValueError, match="stale slowdown"):
         StaleSlowdown(WATCH, float("nan"))
+
+
+def test_a_new_factor_keeps_the_next_step_on_its_time_and_paces_the_ones_after():
+    p = Pacer(8.0, max_lag=0.05)
+    p.anchor(10.0, 100.0)
+    # a step of 10 ms ran; at factor 8 the next is due 1.25 ms after the anchor, and
+    # slowing down it keeps that time
+    p.set_factor(1.0, 10.01, 100.0005)
+    assert p.wait(10.01, 100.0005) == pytest.approx(0.00075)  # not at once
+    assert p.wait(10.02, 100.00125) == pytest.approx(0.01)  # then 10 ms a step
+    # changed every step: still 1 / factor a step
+    wall, t = 100.00125, 10.02
+    for k in range(100):
+        f = 2.0 + 0.001 * k
+        p.set_factor(f, t, wall)
+        wall += p.wait(t, wall)
+        t += 0.01
+    assert (t - 10.02) / (wall - 100.00125) == pytest.approx(2.05, rel=0.03)
+    # late (behind the old schedule): the next step now, no burst to catch up
+    p.set_factor(3.0, t, wall + 1.0)
+    assert p.wait(t, wall + 1.0) == 0.0 and p.wait(t + 0.01, wall + 1.0) == pytest.approx(0.01 / 3)
+    # speeding up: the next step when the new factor puts it, not the old one's 10 ms
+    p = Pacer(1.0, max_lag=0.05)
+    p.anchor(10.0, 100.0)
+    p.set_factor(5.0, 10.01, 100.001)
+    assert p.wait(10.01, 100.001) == pytest.approx(0.001)  # due at 100.002, not 100.01
+    with pytest.raises(ValueError):
+        p.set_factor(-1.0, t, wall)

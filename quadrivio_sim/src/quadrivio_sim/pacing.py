@@ -32,6 +32,20 @@ class Pacer:
         """Sim time ``sim_t`` is now, on the wall clock, ``wall``."""
         self.sim0, self.wall0 = sim_t, wall
 
+    def set_factor(self, rtf: float, sim_t: float, wall: float) -> None:
+        """Run at ``rtf`` from the step that starts at ``sim_t``: that step is due when the
+        faster of the old and the new factor puts it since the anchor (slowing down, it
+        keeps its time; speeding up, it comes sooner), or now when that has passed (no
+        burst to catch up with), and the steps after it follow the new factor."""
+        if rtf < 0.0:
+            raise ValueError(f"real_time_factor must be >= 0, got {rtf}")
+        if rtf == self.rtf:
+            return
+        fast = 0.0 if rtf <= 0.0 or self.rtf <= 0.0 else max(rtf, self.rtf)
+        due = wall if fast <= 0.0 else self.wall0 + (sim_t - self.sim0) / fast
+        self.rtf = rtf
+        self.anchor(sim_t, max(due, wall))
+
     def wait(self, sim_t: float, wall: float) -> float:
         """Wall seconds to wait before the step that starts at ``sim_t`` (0: at once).
         With factor 0 (as fast as possible) never waits."""

@@ -364,9 +364,9 @@ class SimNode:
 
     def _pace_for_the_loop(self) -> None:
         f = self.slowdown.factor(self.rtf, self.sim.t, self._driving(), time.monotonic())
-        if f != self.pacer.rtf:
-            self.pacer.rtf = f
-            self._anchor()  # the new factor counts from now, no burst to catch up with the old
+        # The next step keeps its time under the old factor (anchoring it at now, after the
+        # step, ran it at once: one step unpaced at every change)
+        self.pacer.set_factor(f, self.sim.t, time.monotonic())
 
     def _driving(self) -> bool:
         return self.server.connected and self.sim.plc.mode in DRIVING
