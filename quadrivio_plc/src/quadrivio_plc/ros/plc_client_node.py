@@ -82,8 +82,11 @@ class PlcClientNode:
                             key_file=self.p.key_file)
         if self.lockstep is not None:
             self.lockstep.link(lambda: self.link.connected, lambda: self.link.stats.frames_sent)
-        rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO, queue_size=10)
-        rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint, P.SOURCE_MANUAL, queue_size=10)
+        self.setpoint_subs = {
+            P.SOURCE_AUTO: rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO,
+                                            queue_size=10),
+            P.SOURCE_MANUAL: rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint,
+                                              P.SOURCE_MANUAL, queue_size=10)}
         rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
         rospy.Service("~set_mode", SetMode, self._srv_set_mode)
         self.diag = diagnostics.updater()
@@ -185,8 +188,13 @@ class PlcClientNode:
         if mode in DRIVING:
             for source, stale in self.mux.stale.items():
                 if stale and self.mux.accepts(mode, source):
-                    rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop",
-                                           P.SOURCE_NAMES[source], self.p.setpoint_timeout, P.mode_name(mode))
+                    # how many publishers it is connected to: 0 while the master lists one
+                    # is a subscription that never connected (seen once at start-up)
+                    sub = self.setpoint_subs[source]
+                    rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop "
+                                           "(connected to %d publishers of %s)", P.SOURCE_NAMES[source],
+                                           self.p.setpoint_timeout, P.mode_name(mode), sub.get_num_connections(),
+                                           sub.resolved_name)
 
     def _publish_link_down(self) -> None:
         """No session: say so on vehicle/state at 10 Hz (FAULT_LINK, measurements unknown)."""
