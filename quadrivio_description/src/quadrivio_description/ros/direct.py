@@ -3,7 +3,7 @@ and queue for it only when its socket is full.
 
 A rospy publisher created with a ``queue_size`` gives each subscriber a writer thread of
 its own (``QueuedConnection``): every publication appends to that subscriber's queue,
-wakes its thread and yields the GIL to it (``write_data`` ends in ``time.sleep(0)``). On
+wakes its thread and yields the GIL to it (``write_data`` ends in a zero-second sleep). On
 this 2-core VM a wake-up between threads costs more than the send itself: publishing an
 Imu at 500 Hz to one subscriber cost the publisher 113-144 us a message queued and
 67-73 us written in place (measured side by side, two runs each). ``queue_size=None``

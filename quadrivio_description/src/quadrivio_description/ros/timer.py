@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import threading
 import traceback
-from typing import Callable, List, Optional
+from typing import Callable, List, Optional, Tuple
 
 import rospy
 
@@ -174,18 +174,24 @@ class SimTimer:
     def _run(self) -> None:
         due = self.beat.now() + self.period_ns
         while not self._stopped():
-            now = self.beat.wait(due, self._stopped)
+            now = self.beat.wait(due, self._stopped)  # may wake early (its 0.5 s wait)
             if self._stopped() or self.beat.closed:
                 return
-            if now < due - self.period_ns:  # time moved back: a new period from now
-                due = now + self.period_ns
-                continue
-            if now < due:  # woken early (the 0.5 s wait): wait again
-                continue
-            self.callback(None)
-            due += self.period_ns
-            if now - due > 2 * self.period_ns:
-                due = now + self.period_ns
+            fire, due = _schedule(due, now, self.period_ns)
+            if fire:
+                self.callback(None)
+
+
+def _schedule(due: int, now: int, period: int) -> Tuple[bool, int]:
+    """A sim-time timer's schedule at ROS time ``now``: whether it fires, and when it is
+    due next. Every ``period``; a new period from now when time moved back, or when the
+    timer fell more than two periods behind (no burst to catch up, as rospy.Rate)."""
+    if now < due - period:  # time moved back
+        return False, now + period
+    if now < due:
+        return False, due
+    due += period
+    return True, (now + period if now - due > 2 * period else due)
 
 
 class InlineTimer:
@@ -211,15 +217,9 @@ class InlineTimer:
     def tick(self, now: int) -> None:
         if self._shutdown or rospy.core.is_shutdown_requested():
             return
-        if now < self.due - self.period_ns:  # time moved back: a new period from now
-            self.due = now + self.period_ns
-            return
-        if now < self.due:
-            return
-        self.callback(None)
-        self.due += self.period_ns
-        if now - self.due > 2 * self.period_ns:
-            self.due = now + self.period_ns
+        fire, self.due = _schedule(self.due, now, self.period_ns)
+        if fire:
+            self.callback(None)
 
 
 _BEAT: Optional[SimBeat] = None

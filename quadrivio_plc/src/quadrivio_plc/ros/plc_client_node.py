@@ -188,8 +188,9 @@ class PlcClientNode:
         if mode in DRIVING:
             for source, stale in self.mux.stale.items():
                 if stale and self.mux.accepts(mode, source):
-                    # how many publishers it is connected to: 0 while the master lists one
-                    # is a subscription that never connected (seen once at start-up)
+                    # how many publishers it is connected to: 0 while the master lists one is a
+                    # subscription that never connected (the start-up race quadrivio_description
+                    # .ros.rospy_mends mends)
                     sub = self.setpoint_subs[source]
                     rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop "
                                            "(connected to %d publishers of %s)", P.SOURCE_NAMES[source],

@@ -176,7 +176,7 @@ class Host:
         delayed = [o for o in self.outputs if not o.latency.zero]
         if delayed:
             # In the thread that receives /clock: no thread wake-up per tick just to find
-            # (mostly) one reading due; a drain is a few publications into rospy's queues
+            # (mostly) one reading due; a drain is a few in-place publications
             guarded_timer(min(o.release_period for o in delayed), self._drain, "delayed delivery", inline=True)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
 

@@ -364,8 +364,8 @@ class SimNode:
 
     def _pace_for_the_loop(self) -> None:
         f = self.slowdown.factor(self.rtf, self.sim.t, self._driving(), time.monotonic())
-        # The next step keeps its time under the old factor (anchoring it at now, after the
-        # step, ran it at once: one step unpaced at every change)
+        # The next step stays paced across the change (anchoring it at now, after the step,
+        # ran it at once: one step unpaced at every change; see Pacer.set_factor)
         self.pacer.set_factor(f, self.sim.t, time.monotonic())
 
     def _driving(self) -> bool:
