@@ -35,6 +35,7 @@ from typing import List, Optional
 from quadrivio_description.config import ConfigError
 from quadrivio_description.lockstep_wire import ARMED_PARAM
 
+from ..bus_stats import BusStatsError, behind, inbound_ports, received, sent, socket_quiet, tcp_queues
 from ..scenario import load_scenario
 from .analyze_cli import analyze
 from .bag import RECORD, BagError
@@ -253,6 +254,78 @@ class Runner:
         self.wall_duration = time.monotonic() - self.wall0
         return outcome
 
+    def finish(self, timeout: float = 15.0) -> None:
+        """Pause the simulator and let the recorder take in everything published, before
+        ``stop`` signals it. The pause is taken by the simulation loop between two steps (a
+        lockstep step's rounds included), so nothing new comes after it; what was published
+        is then only in flight, and is waited for connection by connection (``bus_stats``).
+        Signalled at once, the recorder lost a lockstep run's last round from one of two
+        runs of the same seed."""
+        import rospy
+        from std_srvs.srv import Trigger
+
+        try:
+            rospy.ServiceProxy("/simulator/pause", Trigger)()
+        except (rospy.ServiceException, rospy.ROSException, OSError) as exc:
+            self.log(f"could not pause the simulator ({exc}); the bag ends where the recorder stops")
+        master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
+        deadline, clean, lag, before = time.monotonic() + timeout, 0, None, {}
+        while time.monotonic() < deadline and not self._launch_ended():
+            lag, before = self._recorder_behind(master, before)
+            # Twice in a row: roscpp counts a message when it is read, a moment before the
+            # recorder's callback queues it for the bag.
+            clean = clean + 1 if lag == [] else 0
+            if clean == 2:
+                return
+            threading.Event().wait(0.05)
+        if lag is None:
+            self.log("could not read the recorder's connections: the bag may lack the run's last messages")
+        elif lag:
+            self.log("the recorder may still lack messages after {:.0f} s, the bag may end early on: {}".format(
+                timeout, ", ".join(f"{t} from {p} ({n} sent, {'?' if r is None else r} received)"
+                                   for t, p, n, r in lag)))
+
+    def _recorder_behind(self, master, before):
+        """(topic, publisher, sent, received) of each recorded connection with messages
+        possibly in flight (None when the nodes cannot be asked), and the counts sent."""
+        st = self._system(master)
+        if not st:
+            return None, before
+        subs = {t: nodes for t, nodes in st[1]}
+        recorders = {n for t in RECORD for n in subs.get(t, ()) if n.startswith("/record")}
+        if len(recorders) != 1:
+            return None, before
+        recorder = recorders.pop()
+        topics = set(RECORD)
+        try:
+            uri = lambda node: master.lookupNode("/experiment", node)[2]  # noqa: E731
+            out = {}
+            # What was sent first, then what arrived: everything sent before the first
+            # question has arrived if the second answer covers it.
+            for node in sorted({p for t, pubs in st[0] if t in topics for p in pubs}):
+                node_uri = uri(node)
+                proxy = xmlrpc.client.ServerProxy(node_uri)
+                for topic, n in sent(proxy.getBusInfo("/experiment"), proxy.getBusStats("/experiment"),
+                                     recorder, topics).items():
+                    out[(topic, node_uri)] = n
+            proxy = xmlrpc.client.ServerProxy(uri(recorder))
+            info = proxy.getBusInfo("/experiment")
+            got = received(info, proxy.getBusStats("/experiment"), topics)
+            quiet = {}
+            if any(v is None for v in got.values()):
+                tables = []
+                for name in ("/proc/net/tcp", "/proc/net/tcp6"):
+                    try:
+                        with open(name) as fh:
+                            tables.append(fh.read())
+                    except OSError:
+                        pass
+                queues = tcp_queues(*tables)
+                quiet = {k: socket_quiet(p, queues) for k, p in inbound_ports(info, topics).items()}
+        except (OSError, xmlrpc.client.Error, IndexError, TypeError, BusStatsError):
+            return None, before  # a node going: ask again
+        return behind(out, got, before, quiet), out
+
     def stop(self) -> None:
         bag = getattr(self, "bag", None)
         order = ([bag] if bag is not None else []) + [p for p in reversed(self.procs) if p is not bag]
@@ -303,6 +376,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     try:
         runner.start()
         outcome = runner.run()
+        runner.finish()
     except (RuntimeError, OSError) as exc:
         print(f"experiment: {exc}", file=sys.stderr)
         runner.stop()
