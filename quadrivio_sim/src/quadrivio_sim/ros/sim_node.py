@@ -20,6 +20,9 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   than its limit (sim s), run at real time, where the stack keeps its sim-time deadlines
   (the smoother's ``max_wait``), until every one is fresh again; at most the budget (wall
   s) per episode (``pacing.StaleSlowdown``). ``{}``: never.
+* ``~stale_slowdown_fraction`` (float, 0.7) and ``~stale_slowdown_escalate`` (float, 0.1):
+  an episode first runs at that fraction of the factor (never below real time), and at
+  real time once it has lasted that many wall seconds; fraction 0: real time at once.
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
@@ -105,6 +108,11 @@ class NodeParams:
                                                  "of these stamped topics is older than this (sim s); {}: never")
     stale_slowdown_budget: float = param(2.0, lo=0.0, hi=600.0, unit="s",
                                          doc="wall seconds one such slowdown may last (a node that died)")
+    stale_slowdown_fraction: float = param(0.7, lo=0.0, hi=0.99,
+                                           doc="a slowdown first runs at this fraction of the factor (not below "
+                                               "real time); 0: at real time at once")
+    stale_slowdown_escalate: float = param(0.1, lo=0.0, hi=60.0, unit="s",
+                                           doc="wall seconds a slowdown runs at that fraction before real time")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
@@ -176,7 +184,8 @@ class SimNode:
         # Above factor 1 the stack's sim-time deadlines shrink in wall time (pacing.StaleSlowdown);
         # lockstep waits for the loop anyway
         fast = self.lockstep is None and (self.rtf == 0.0 or self.rtf > 1.0)
-        self.slowdown = StaleSlowdown(self.np.stale_slowdown if fast else {}, self.np.stale_slowdown_budget)
+        self.slowdown = StaleSlowdown(self.np.stale_slowdown if fast else {}, self.np.stale_slowdown_budget,
+                                      self.np.stale_slowdown_fraction, self.np.stale_slowdown_escalate)
         self.watched_stamped: Dict[tuple, bool] = {}  # (topic, md5sum) -> whether a Header comes first
         for topic in self.slowdown.max_age:
             # Only the header's stamp is read, from the serialised message (no deserialisation)
@@ -457,8 +466,8 @@ class SimNode:
                      f"{self.hold.given_up} given up (the watchdog's to brake)")
         sd = self.slowdown
         if sd.enabled:
-            stat.add("slowed to real time for a stale stream", ", ".join(f"{k} {v}" for k, v in sd.episodes.items()) +
-                     f" ({sd.slow_wall:.2f} wall s), {sd.given_up} given up")
+            stat.add("slowed down for a stale stream", ", ".join(f"{k} {v}" for k, v in sd.episodes.items()) +
+                     f" ({sd.slow_wall:.2f} wall s), {sd.escalated} on to real time, {sd.given_up} given up")
         ls = self.lockstep
         if ls is not None:
             if ls.left or ls.errors:
