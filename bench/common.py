@@ -140,11 +140,13 @@ def experiment(scenario: str, out: str, rtf: float, *extra: str) -> dict:
     plus ``out`` and ``wall_s``; ``{"completed": False, ...}`` when it wrote none."""
     import sys
 
+    path = os.path.join(out, "metrics.json")
+    if os.path.isfile(path):  # an earlier run's: a run that fails must not be read as this one
+        os.remove(path)
     t0 = time.monotonic()
     r = subprocess.run(["rosrun", "quadrivio", "experiment", scenario, "--rtf", str(rtf), "--out", out,
                         "--wall-timeout", "400", *extra], capture_output=True, text=True)
     wall = time.monotonic() - t0
-    path = os.path.join(out, "metrics.json")
     if not os.path.isfile(path):
         print(r.stdout[-2000:], r.stderr[-2000:], file=sys.stderr)
         return {"completed": False, "out": out, "wall_s": wall}

@@ -175,17 +175,17 @@ def test_stale_slowdown_first_slows_to_a_fraction_of_the_factor_then_to_real_tim
     sd = StaleSlowdown(WATCH, budget=2.0, fraction=0.7, escalate=0.1)
     sd.seen("localization/predicted", 10.0)
     assert sd.factor(5.0, 10.2, True, wall=0.0) == pytest.approx(3.5)  # a short wait for a core
-    assert sd.factor(5.0, 10.21, True, wall=0.09) == pytest.approx(3.5)
+    assert sd.factor(5.0, 10.29, True, wall=0.5) == pytest.approx(3.5)  # the escalation is in sim time
     assert sd.escalated == 0
-    assert sd.factor(5.0, 10.22, True, wall=0.11) == 1.0  # still stale after 0.1 wall s
-    assert sd.factor(5.0, 10.23, True, wall=0.12) == 1.0 and sd.escalated == 1
-    sd.seen("localization/predicted", 10.23)
-    assert sd.factor(5.0, 10.24, True, wall=0.13) == 5.0 and not sd.slow
-    assert sd.factor(5.0, 10.4, True, wall=0.2) == pytest.approx(3.5)  # a new episode starts at the fraction
+    assert sd.factor(5.0, 10.31, True, wall=0.51) == 1.0  # still stale 0.1 sim s after it began
+    assert sd.factor(5.0, 10.32, True, wall=0.52) == 1.0 and sd.escalated == 1
+    sd.seen("localization/predicted", 10.32)
+    assert sd.factor(5.0, 10.33, True, wall=0.53) == 5.0 and not sd.slow
+    assert sd.factor(5.0, 10.5, True, wall=0.6) == pytest.approx(3.5)  # a new episode starts at the fraction
     assert sd.episodes["localization/predicted"] == 2 and sd.escalated == 1
     # never below real time, and as fast as possible has no fraction: real time
-    assert sd.factor(1.2, 10.4, True, wall=0.21) == 1.0
-    assert sd.factor(0.0, 10.4, True, wall=0.22) == 1.0
+    assert sd.factor(1.2, 10.5, True, wall=0.61) == 1.0
+    assert sd.factor(0.0, 10.5, True, wall=0.62) == 1.0
 
 
 def test_stale_slowdown_bad_parameters_are_named():

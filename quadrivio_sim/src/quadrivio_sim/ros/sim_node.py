@@ -22,7 +22,7 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   s) per episode (``pacing.StaleSlowdown``). ``{}``: never.
 * ``~stale_slowdown_fraction`` (float, 0.7) and ``~stale_slowdown_escalate`` (float, 0.1):
   an episode first runs at that fraction of the factor (never below real time), and at
-  real time once it has lasted that many wall seconds; fraction 0: real time at once.
+  real time once it has lasted that many sim seconds; fraction 0: real time at once.
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
@@ -112,7 +112,7 @@ class NodeParams:
                                            doc="a slowdown first runs at this fraction of the factor (not below "
                                                "real time); 0: at real time at once")
     stale_slowdown_escalate: float = param(0.1, lo=0.0, hi=60.0, unit="s",
-                                           doc="wall seconds a slowdown runs at that fraction before real time")
+                                           doc="sim seconds a slowdown runs at that fraction before real time")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
