@@ -104,7 +104,9 @@ def test_analyze_with_a_corrupt_run_info(tmp_path, capsys, content):
 
 
 @pytest.mark.parametrize("args,what", [(["--rtf", "-1"], "--rtf -1.0"), (["--rtf", "nan"], "--rtf nan"),
-                                       (["--seed", "-3"], "--seed"), (["--wall-timeout", "-5"], "--wall-timeout")])
+                                       (["--seed", "-3"], "--seed"), (["--wall-timeout", "-5"], "--wall-timeout"),
+                                       (["--stale-fraction", "1"], "--stale-fraction"),
+                                       (["--stale-fraction", "nan"], "--stale-fraction")])
 def test_experiment_checks_its_arguments_before_launching(tmp_path, capsys, args, what):
     out = tmp_path / "run"
     assert experiment_cli.main(["figure_eight", "--out", str(out)] + args) == 2

@@ -186,6 +186,10 @@ def test_stale_slowdown_first_slows_to_a_fraction_of_the_factor_then_to_real_tim
     # never below real time, and as fast as possible has no fraction: real time
     assert sd.factor(1.2, 10.5, True, wall=0.61) == 1.0
     assert sd.factor(0.0, 10.5, True, wall=0.62) == 1.0
+    # fraction 0 (the default): every episode at real time at once, each counted as such
+    sd = StaleSlowdown(WATCH, budget=2.0, fraction=0.0, escalate=0.1)
+    sd.seen("localization/predicted", 10.0)
+    assert sd.factor(5.0, 10.2, True, wall=0.0) == 1.0 and sd.escalated == 1
 
 
 def test_stale_slowdown_bad_parameters_are_named():

@@ -210,7 +210,7 @@ class StaleSlowdown:
                 self._given_up_at[name] = self.newest[name]
             self._end(wall)
             return rtf
-        if rtf > 0.0 and sim_t - self._since_sim < self.escalate:
+        if self.fraction > 0.0 and rtf > 0.0 and sim_t - self._since_sim < self.escalate:
             return max(1.0, self.fraction * rtf)
         if not self._at_real_time:
             self._at_real_time = True

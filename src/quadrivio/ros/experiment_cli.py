@@ -100,7 +100,8 @@ class Runner:
         common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
                   f"excitation:={excitation}"]
         sim = ["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", f"rtf:={self.rtf}", f"seed:={self.seed}",
-               "start_paused:=true", f"run_until:={run.max_duration:g}"] + common
+               "start_paused:=true", f"run_until:={run.max_duration:g}",
+               f"stale_fraction:={self.args.stale_fraction:g}"] + common
         if self.args.lockstep:
             sim.append("lockstep:=true")
         if self.args.stack == "real":
@@ -349,6 +350,10 @@ def main(argv: Optional[List[str]] = None) -> int:
                    help="sim: sim.launch (default); real: sim.launch hardware:=true and real.launch against it, "
                         "as on the vehicle")
     p.add_argument("--wall-timeout", type=float, default=0.0, help="give up after this many wall seconds (0: never)")
+    p.add_argument("--stale-fraction", type=float, default=0.0, metavar="F",
+                   help="above factor 1, while the loop's output is stale, run first at F times the factor instead "
+                        "of real time (0 <= F < 1; 0: real time at once): asked for more than the machine sustains, "
+                        "the run gets closer to it, but the loop may act on data staler than 5 periods")
     p.add_argument("--lockstep", action="store_true",
                    help="the simulator steps only when the closed loop has consumed the last tick: the same seed "
                         "gives the same run, message for message (with --rtf 0 as fast as the loop goes)")
@@ -362,6 +367,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.lockstep and args.stack == "real":
         print("experiment: --lockstep needs --stack sim (real.launch's nodes start after the simulator has armed)",
               file=sys.stderr)
+        return 2
+    if not 0.0 <= args.stale_fraction < 1.0:
+        print(f"experiment: --stale-fraction {args.stale_fraction} must be in [0, 1)", file=sys.stderr)
         return 2
     if args.wall_timeout < 0.0 or not math.isfinite(args.wall_timeout):
         print(f"experiment: --wall-timeout {args.wall_timeout} must be >= 0 (0: never)", file=sys.stderr)
@@ -389,7 +397,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
-            "stack": args.stack, "lockstep": args.lockstep,
+            "stack": args.stack, "lockstep": args.lockstep, "stale_fraction": args.stale_fraction,
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
     tmp = os.path.join(runner.out, ".run_info.json.tmp")
     with open(tmp, "w") as fh:
