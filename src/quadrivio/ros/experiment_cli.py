@@ -47,6 +47,24 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+class _TimeoutTransport(xmlrpc.client.Transport):
+    """XML-RPC over HTTP that gives up after ``timeout`` s: a node stopped by a signal
+    (SIGSTOP, as the fault tests do to the PLC client) never answers."""
+
+    def __init__(self, timeout: float) -> None:
+        super().__init__()
+        self.timeout = timeout
+
+    def make_connection(self, host):
+        conn = super().make_connection(host)
+        conn.timeout = self.timeout
+        return conn
+
+
+def _proxy(uri: str, timeout: float = 2.0) -> xmlrpc.client.ServerProxy:
+    return xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout))
+
+
 class Runner:
     def __init__(self, args) -> None:
         self.args = args
@@ -265,11 +283,21 @@ class Runner:
         import rospy
         from std_srvs.srv import Trigger
 
-        try:
-            rospy.ServiceProxy("/simulator/pause", Trigger)()
-        except (rospy.ServiceException, rospy.ROSException, OSError) as exc:
-            self.log(f"could not pause the simulator ({exc}); the bag ends where the recorder stops")
-        master = xmlrpc.client.ServerProxy(self.env["ROS_MASTER_URI"])
+        box = {}
+
+        def pause() -> None:
+            try:
+                rospy.ServiceProxy("/simulator/pause", Trigger)()
+                box["ok"] = True
+            except (rospy.ServiceException, rospy.ROSException, OSError) as exc:
+                box["error"] = exc
+        asker = threading.Thread(target=pause, daemon=True)  # a stopped simulator never answers
+        asker.start()
+        asker.join(10.0)
+        if "ok" not in box:
+            self.log(f"could not pause the simulator ({box.get('error', 'no answer in 10 s')}); the bag ends "
+                     "where the recorder stops")
+        master = _proxy(self.env["ROS_MASTER_URI"])
         deadline, clean, lag, before = time.monotonic() + timeout, 0, None, {}
         while time.monotonic() < deadline and not self._launch_ended():
             lag, before = self._recorder_behind(master, before)
@@ -305,11 +333,11 @@ class Runner:
             # question has arrived if the second answer covers it.
             for node in sorted({p for t, pubs in st[0] if t in topics for p in pubs}):
                 node_uri = uri(node)
-                proxy = xmlrpc.client.ServerProxy(node_uri)
+                proxy = _proxy(node_uri)
                 for topic, n in sent(proxy.getBusInfo("/experiment"), proxy.getBusStats("/experiment"),
                                      recorder, topics).items():
                     out[(topic, node_uri)] = n
-            proxy = xmlrpc.client.ServerProxy(uri(recorder))
+            proxy = _proxy(uri(recorder))
             info = proxy.getBusInfo("/experiment")
             got = received(info, proxy.getBusStats("/experiment"), topics)
             quiet = {}
