@@ -308,3 +308,46 @@ def test_fuzzed_session_never_drives_and_survives(plc):
     st = plc.server.stats
     assert st.stale_frames >= fuzzer.counts["replayed"] * 0.5
     assert sum(st.bad_frames.values()) >= fuzzer.counts["bad checksum"] + fuzzer.counts["bad version"]
+
+
+def test_a_resumed_client_reports_what_the_plc_said_while_it_was_stopped(plc):
+    """A client process stopped (SIGSTOP) while driving: the PLC brakes on its watchdog,
+    says so in its states, and replaces the silent session. Resumed, the client's first
+    send may fail (the PLC closed that connection) before its I/O thread has read the
+    states queued on it: they must still be read and reported, not lost with the socket
+    (faults.test once saw no FAULT_WATCHDOG after the resume)."""
+    states = []
+    link = PlcLink("127.0.0.1", plc.port, key=KEY, reconnect_min=0.05, reconnect_max=0.2,
+                   on_state=states.append)
+    deadline = time.monotonic() + 5.0
+    while not link.connected:  # this test is the I/O thread: it polls by hand
+        assert time.monotonic() < deadline, "no session"
+        link.poll(0.01)
+    acks = []
+    link.send(P.ModeRequest(P.MODE_AUTO), on_ack=acks.append)
+    while not acks:
+        assert time.monotonic() < deadline, "no answer to AUTO"
+        link.poll(0.01)
+    assert acks[0].status == P.OK
+    link.send(P.Setpoint(P.SOURCE_AUTO, 1.0, 0.0, 0.0))
+    link.poll(0.05)
+    # stopped: nothing polls from here on
+    plc.t = 0.25
+    wait(lambda: plc.logic.mode == P.MODE_SAFE)
+    for _ in range(3):  # the PLC's states while the client is stopped
+        plc.server.send_state(P.State(plc.t, plc.logic.mode, plc.logic.faults, 0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0))
+    with RawClient("127.0.0.1", plc.port) as fresh:  # silent longer than the watchdog: replaced
+        assert isinstance(fresh.authenticate(KEY), P.Ack)
+    # resumed: another thread sends first, and keeps sending until the closed connection fails it
+    for _ in range(400):
+        link.send(P.Setpoint(P.SOURCE_AUTO, 1.0, 0.0, 0.0))
+        if not link.connected or getattr(link, "write_error", ""):
+            break
+        time.sleep(0.005)
+    else:
+        pytest.fail("sending on the closed connection never failed")
+    link.poll(0.05)  # then the I/O thread runs
+    flagged = [s for s in states if s.faults & P.FAULT_WATCHDOG]
+    assert len(flagged) == 3 and all(s.mode == P.MODE_SAFE for s in flagged)
+    assert not link.connected  # and the lost link is still dropped (to reconnect)
+    link.close()

@@ -218,6 +218,9 @@ class PlcLink:
         self.next_attempt = 0.0
         self.last_rx = -math.inf
         self.last_error = ""
+        # A send that failed in another thread: the I/O thread reads what the PLC sent
+        # before the connection broke, then drops it (see ``poll``)
+        self.write_error = ""
 
     @property
     def connected(self) -> bool:
@@ -251,6 +254,7 @@ class PlcLink:
             self.sock = sock
             self.session = False
             self.out.clear()
+            self.write_error = ""
             self.sent_at.clear()
             self.ack_callbacks.clear()
         self._key = key
@@ -282,6 +286,7 @@ class PlcLink:
         with self.lock:
             sock, self.sock = self.sock, None
             was_session, self.session = self.session, False
+            self.write_error = ""
         if sock is None:
             return
         try:
@@ -322,8 +327,11 @@ class PlcLink:
                 self.stats.unanswered += 1
             self.stats.frames_sent += 1
             error = self._flush_locked()
-        if error:
-            self._drop(error)
+            if error and not self.write_error:
+                # Not dropped here: the socket may still hold the PLC's last frames (a
+                # client stopped by a signal and resumed finds its connection replaced, and
+                # its states say the watchdog braked). The I/O thread reads them first.
+                self.write_error = error
         return seq
 
     def _flush_locked(self) -> str:
@@ -355,23 +363,28 @@ class PlcLink:
                        f"Quadrivio PLC?)")
         with self.lock:
             error = self._flush_locked() if self.sock is not None and self.out else ""
+            error, self.write_error = error or self.write_error, ""
         if error:
+            for _ in range(1024):  # what the PLC sent before the connection broke, then the drop
+                if not self._read():
+                    break
             self._drop(error)
 
-    def _read(self) -> None:
+    def _read(self) -> bool:
+        """Read and handle what the socket holds; whether anything was read."""
         sock = self.sock
         if sock is None:
-            return
+            return False
         try:
             data = sock.recv(65536)
         except BlockingIOError:
-            return
+            return False
         except OSError as exc:
             self._drop(str(exc))
-            return
+            return False
         if not data:
             self._drop("connection closed by the PLC")
-            return
+            return False
         now = self.clock()
         self.last_rx = now
         for seq, msg in self.decoder.feed(data):
@@ -405,9 +418,10 @@ class PlcLink:
             elif isinstance(msg, P.Refused):
                 self.stats.refused += 1
                 self._drop(f"refused by the PLC: {msg.text}")
-                return
+                return False
         for problem in self.decoder.pop_problems():
             self.on_event("warn", f"frame from the PLC rejected ({problem}); skipped")
+        return True
 
     def rtt_percentiles(self, *qs: float) -> Tuple[float, ...]:
         """Round-trip time percentiles [s] over the last frames (NaN before any)."""
