@@ -202,6 +202,15 @@ class Runner:
         st = self._system(master)
         return bool(st) and any(s == service for s, _ in st[2])
 
+    @staticmethod
+    def _recorder(st) -> Optional[str]:
+        """The run's recorder among the subscribers in the master's system state, None
+        while there is not exactly one."""
+        if not st:
+            return None
+        recorders = {n for t, nodes in st[1] if t in RECORD for n in nodes if n.startswith("/record")}
+        return recorders.pop() if len(recorders) == 1 else None
+
     def _recording(self, master) -> bool:
         """Whether the recorder is connected to every publisher of every topic it records.
 
@@ -211,15 +220,15 @@ class Runner:
         went missing from one of two runs of the same seed). The recorder's own bus
         information lists its inbound connections by the publisher's URI."""
         st = self._system(master)
-        if not st:
+        recorder = self._recorder(st)
+        if recorder is None:
             return False
         subs = {t: nodes for t, nodes in st[1]}
-        recorders = {n for t in RECORD for n in subs.get(t, ()) if n.startswith("/record")}
-        if len(recorders) != 1 or any(not set(subs.get(t, ())) & recorders for t in RECORD):
+        if any(recorder not in subs.get(t, ()) for t in RECORD):
             return False  # not yet subscribed to every topic
         try:
             uri = lambda node: master.lookupNode("/experiment", node)[2]  # noqa: E731
-            info = xmlrpc.client.ServerProxy(uri(recorders.pop())).getBusInfo("/experiment")[2]
+            info = xmlrpc.client.ServerProxy(uri(recorder)).getBusInfo("/experiment")[2]
             connected = {(c[4], c[1]) for c in info if c[2] == "i" and c[5]}
             return all((t, uri(p)) in connected for t, pubs in st[0] if t in RECORD for p in pubs)
         except (OSError, xmlrpc.client.Error, IndexError, TypeError):
@@ -318,13 +327,9 @@ class Runner:
         """(topic, publisher, sent, received) of each recorded connection with messages
         possibly in flight (None when the nodes cannot be asked), and the counts sent."""
         st = self._system(master)
-        if not st:
+        recorder = self._recorder(st)
+        if recorder is None:
             return None, before
-        subs = {t: nodes for t, nodes in st[1]}
-        recorders = {n for t in RECORD for n in subs.get(t, ()) if n.startswith("/record")}
-        if len(recorders) != 1:
-            return None, before
-        recorder = recorders.pop()
         topics = set(RECORD)
         try:
             uri = lambda node: master.lookupNode("/experiment", node)[2]  # noqa: E731
