@@ -105,13 +105,15 @@ def plot(summary: dict, path: str) -> None:
 
     names = list(summary)
     fig, ax = plt.subplots(figsize=(10, 4.5))
-    w = 0.27
-    for i, (key, label, color) in enumerate((("ours", "Quadrivio smoother", "tab:blue"),
-                                             ("ekf", "robot_localization EKF", "tab:orange"),
-                                             ("gps", "raw GPS", "0.6"))):
-        means = [summary[n][key]["rmse_m"][0] or 0 for n in names]
-        sds = [summary[n][key]["rmse_m"][1] or 0 for n in names]
-        ax.bar(np.arange(len(names)) + (i - 1) * w, means, w, yerr=sds, label=label, color=color, capsize=2)
+    w = 0.2
+    for i, (key, figure, label, color) in enumerate((
+            ("ours", "rmse_m", "Quadrivio smoother", "tab:blue"),
+            ("ekf", "rmse_m", "robot_localization EKF", "tab:orange"),
+            ("gps", "oracle_rms_m", "oracle: perfect odometry, true drift model", "0.25"),
+            ("gps", "rmse_m", "raw GPS", "0.6"))):
+        means = [summary[n][key][figure][0] or 0 for n in names]
+        sds = [summary[n][key][figure][1] or 0 for n in names]
+        ax.bar(np.arange(len(names)) + (i - 1.5) * w, means, w, yerr=sds, label=label, color=color, capsize=2)
     ax.set_xticks(np.arange(len(names)))
     ax.set_xticklabels(names, rotation=15)
     ax.set_ylabel("position RMSE [m] (mean ± sd over seeds)")
@@ -177,6 +179,8 @@ def main() -> int:
             entry["ekf"][key] = mean_sd([r["ekf"].get(key) for r in rs])
         entry["gps"]["rmse_m"] = mean_sd([r["ours"]["gps_rmse_m"] for r in rs])
         entry["gps"]["drift_rms_m"] = mean_sd([r["ours"].get("gps_drift_rms_m") for r in rs])
+        entry["gps"]["oracle_rms_m"] = mean_sd([r["ours"].get("gps_oracle_rms_m") for r in rs])
+        entry["oracle_vs_ekf"] = mean_sd([r["ours"]["gps_oracle_rms_m"] / r["ekf"]["rmse_m"] for r in rs])
         for key in ("steer_offset_error_deg", "wheel_scale_error_pct", "dead_wheel_named_after_s", "update_p99_ms",
                     "update_cpu_p99_ms", "cpu_frac"):
             entry["ours"][key] = mean_sd([r["ours"].get(key) for r in rs])
@@ -197,6 +201,11 @@ def main() -> int:
                                                 / by[("consumer", s)]["ours"]["gps_drift_rms_m"] for s in seeds])[0],
         "ekf_consumer_vs_drift_ratio": mean_sd([by[("consumer", s)]["ekf"]["rmse_m"]
                                                 / by[("consumer", s)]["ours"]["gps_drift_rms_m"] for s in seeds])[0],
+        # the GNSS oracle (quadrivio.gnss_bound: perfect odometry and the receiver's true drift
+        # model) on the same fixes: the lowest ratio to the EKF any estimator reaches in expectation
+        "oracle_consumer_vs_ekf_ratio": summary["consumer"]["oracle_vs_ekf"][0],
+        "loc_consumer_vs_oracle_ratio": mean_sd([by[("consumer", s)]["ours"]["rmse_m"]
+                                                 / by[("consumer", s)]["ours"]["gps_oracle_rms_m"] for s in seeds])[0],
         "loc_multipath_vs_consumer_ratio": multipath_ratio[0],
         "loc_outage_end_error_m": summary["long_outage"]["ours"]["outage_end_error_m"][0],
         "loc_outage_recovery_10s_minus_rtk_rmse_m": recovery[0],
@@ -223,7 +232,7 @@ def main() -> int:
     for n in SCENARIOS:
         e = summary[n]
         log(f"{n:16s} ours {e['ours']['rmse_m'][0]:.3f} m  EKF {e['ekf']['rmse_m'][0]:.3f} m  "
-            f"GPS {e['gps']['rmse_m'][0]:.3f} m  ours/GPS {e['ours_vs_gps'][0]:.2f}  ours/EKF {e['ours_vs_ekf'][0]:.2f}")
+            f"GPS {e['gps']['rmse_m'][0]:.3f} m  oracle {e['gps']['oracle_rms_m'][0] or math.nan:.3f} m  ours/GPS {e['ours_vs_gps'][0]:.2f}  ours/EKF {e['ours_vs_ekf'][0]:.2f}")
     import shutil
     shutil.rmtree(work, ignore_errors=True)
     return 0

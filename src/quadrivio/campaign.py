@@ -42,7 +42,7 @@ from .scenario import load_scenario
 
 # Figures of a run that the table averages (key, header, unit)
 COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_gps", "RMSE / GPS", ""),
-           ("gps_drift_rms_m", "GPS drift alone", "m"),
+           ("gps_drift_rms_m", "GPS drift alone", "m"), ("gps_oracle_rms_m", "oracle (perfect odometry)", "m"),
            ("max_error_m", "max error", "m"), ("heading_rmse_deg", "heading RMSE", "deg"),
            ("steer_offset_error_deg", "steering offset error", "deg"),
            ("wheel_scale_error_pct", "wheel scale error", "%"), ("outage_end_error_m", "error at outage end", "m"),

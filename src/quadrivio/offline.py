@@ -314,6 +314,28 @@ def rmse(x) -> float:
     return float(np.sqrt(np.mean(np.square(x)))) if len(x) else math.nan
 
 
+def oracle_rms(r: OfflineRun, s: Scenario, settle: float = SETTLE) -> float:
+    """RMS position error after ``settle`` s of the GNSS oracle (:mod:`quadrivio.gnss_bound`)
+    on this run's fixes, with the scenario's receiver model; multipath fixes are known to it
+    and left out. NaN without fixes or without the drift in the run's record."""
+    from quadrivio_sim.adapter_params import GpsAdapterParams
+
+    from .gnss_bound import oracle_errors
+
+    a = r.antenna
+    if len(a) == 0 or a.shape[1] < 11:
+        return math.nan
+    noise = sensor_params(s, "gps", GpsAdapterParams, "gps.yaml").noise
+    std2, drift2 = noise.horizontal_std ** 2, noise.drift.sigma ** 2
+    has = (a[:, 7] >= 0) & np.isfinite(a[:, 3]) & np.isfinite(a[:, 5])
+    offsets = np.where(has[:, None], a[:, 3:5] - a[:, 1:3], np.nan)
+    # the reported variance is (white + drift) x the degradation factor squared; the white part:
+    white = np.where(has, a[:, 5] * (std2 / (std2 + drift2) if std2 + drift2 > 0 else 0.0), np.nan)
+    e = oracle_errors(a[:, 0], offsets, white, noise.drift.sigma, noise.drift.tau, a[:, 8] == 0)
+    late = e[(a[:, 0] >= settle) & np.all(np.isfinite(e), axis=1)]
+    return rmse(np.hypot(late[:, 0], late[:, 1])) if len(late) else math.nan
+
+
 def score(r: OfflineRun, s: Scenario, settle: float = SETTLE) -> Dict[str, object]:
     """The run's figures (see ``campaign``): errors after ``settle`` s, the raw GPS's and its
     drift's alone, the
@@ -333,6 +355,9 @@ def score(r: OfflineRun, s: Scenario, settle: float = SETTLE) -> Dict[str, objec
         # so it is a floor for the position error (not a bound: odometry can see some of it)
         "gps_drift_rms_m": rmse(np.hypot(*a[a[:, 0] >= settle][:, 9:11].T)) if len(a) and a.shape[1] >= 11
         else math.nan,
+        # the best any causal estimator can do in expectation: perfect odometry and the
+        # receiver's true drift model (quadrivio.gnss_bound; the EKF scores the drift's)
+        "gps_oracle_rms_m": oracle_rms(r, s, settle),
         "update_p99_ms": float(np.percentile(r.update_ms, 99)) if len(r.update_ms) else math.nan,
         "update_cpu_p99_ms": float(np.percentile(r.update_cpu_ms, 99)) if len(r.update_cpu_ms) else math.nan,
         "cpu_frac": r.cpu_frac, "wall_s": r.wall,
