@@ -23,7 +23,8 @@ WALL = 60.0
 def main():
     with ros_session() as ros:
         ros.launch("quadrivio_sim", "bench_sensors.launch",
-                   "script_file:=" + os.path.join(HERE, "data", "slalom.csv"))
+                   "script_file:=" + os.path.join(HERE, "data", "slalom.csv"),
+                   "steps_per_wake:=" + os.environ.get("SENSORS_STEPS_PER_WAKE", ""))  # A/B: 1 = a wait every step
         import rosnode
 
         deadline = time.monotonic() + 120

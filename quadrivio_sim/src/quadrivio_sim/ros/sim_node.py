@@ -24,6 +24,11 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
   an episode first runs at that fraction of the factor (never below real time), and at
   real time once it has lasted that many sim seconds; fraction 0: real time at once.
 * ``~clock_every`` (int, 1): publish ``/clock`` every n physics steps.
+* ``~steps_per_wake`` (int, 2): run n physics steps back to back, then wait for the pacing:
+  each process wakes once per n steps instead of every step, which on a VM is most of the
+  cost of a node (``bench_sensors``: a quarter less CPU with 2); the closed loop's answer
+  to a step's readings may then be applied up to n - 1 steps (10 ms) later in sim time. 1:
+  a wait before every step.
 * ``~actuators_file`` (str): YAML of the PLC's low-level loops (``config/actuators.yaml``).
 * ``~urdf_file`` (str, ""): vehicle URDF; empty generates it from ``/vehicle``.
 * ``~debug_setpoints`` (bool, false): accept ``~debug/setpoint`` (quadrivio_plc/Setpoint),
@@ -118,6 +123,13 @@ class NodeParams:
     stale_slowdown_escalate: float = param(0.1, lo=0.0, hi=60.0, unit="s",
                                            doc="sim seconds a slowdown runs at that fraction before real time")
     clock_every: int = param(1, lo=1, hi=1000, doc="publish /clock every n physics steps")
+    # 2: every process wakes half as often (the steps' messages arrive together and rospy
+    # reads them in one go), and on this VM a wake-up from idle is most of a node's cost:
+    # bench_sensors 0.154-0.165 -> 0.116-0.125 of a core (k 4: 0.096-0.102), alternated in
+    # one spell. The price: the loop's answer to a step may land one step later (10 ms).
+    steps_per_wake: int = param(2, lo=1, hi=100, doc="physics steps run back to back before the pacing waits "
+                                                     "(the factor holds on average; the loop's answer may come "
+                                                     "up to n-1 steps later in sim time)")
     actuators_file: str = param("", doc="YAML of the low-level loops; empty: the package's config/actuators.yaml")
     urdf_file: str = param("", doc="vehicle URDF; empty: generated from the vehicle parameters")
     debug_setpoints: bool = param(False, doc="accept ~debug/setpoint (tests)")
@@ -357,6 +369,9 @@ class SimNode:
             if self.np.run_until and self.sim.t >= self.np.run_until - 1e-9 and not self.stopped:
                 rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
                 self.paused = self.stopped = True
+            if self.sim.steps % self.np.steps_per_wake:
+                self.server.poll(0.0)  # the next step at once: one wake-up per batch of steps
+                continue
             drops = self.pacer.drops
             self._poll_until(time.monotonic() + self.pacer.wait(self.sim.t, time.monotonic()))
             if self.pacer.drops != drops:
