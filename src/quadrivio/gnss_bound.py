@@ -18,7 +18,8 @@ chance; over seeds it cannot.) The receiver's drift alone, which the offline run
 report, is what an estimator that follows the fixes (robot_localization's EKF) scores.
 
 Pure and ROS-free: used by :func:`quadrivio.offline.score` with the scenario's own
-receiver model, and tested against the batch generalised least squares it stands for.
+receiver model, and tested against the batch generalised least squares it stands for
+(``test/test_gnss_bound.py``).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ def oracle_errors(t: Sequence[float], offsets: np.ndarray, white_var: Sequence[f
     # One filter serves every axis: the same model, so the same gains; only the means differ.
     x = np.zeros((2, y.shape[1]))  # [c, d] per axis
     P = np.diag([FLAT, sigma * sigma])
+    H = np.array([1.0, 1.0])  # a fix sees the offset plus the drift
     last, started = None, False
     for i in range(len(t)):
         if last is not None and sigma > 0.0:
@@ -69,7 +71,6 @@ def oracle_errors(t: Sequence[float], offsets: np.ndarray, white_var: Sequence[f
             P = F @ P @ F.T + np.diag([0.0, sigma * sigma * (1.0 - phi * phi)])
         last = t[i]
         if ok[i]:
-            H = np.array([1.0, 1.0])
             S = H @ P @ H + r[i]
             if S <= 0.0:  # a perfect fix and no drift: the offset is known exactly
                 S = 1e-300
@@ -80,20 +81,4 @@ def oracle_errors(t: Sequence[float], offsets: np.ndarray, white_var: Sequence[f
             started = True
         if started:
             out[i] = x[0]
-    return out
-
-
-def gls_errors(t: Sequence[float], offsets: np.ndarray, white_var: Sequence[float], sigma: float,
-               tau: float) -> np.ndarray:
-    """:func:`oracle_errors` by brute force (every fix used; O(n^4)): at each epoch the
-    generalised least-squares mean of the offsets so far under the drift's covariance.
-    For tests."""
-    t = np.asarray(t, float)
-    y = np.asarray(offsets, float)
-    y = y[:, None] if y.ndim == 1 else y
-    C = sigma * sigma * np.exp(-np.abs(t[:, None] - t[None, :]) / tau) + np.diag(np.asarray(white_var, float))
-    out = np.zeros(y.shape)
-    for k in range(len(t)):
-        w = np.linalg.solve(C[:k + 1, :k + 1], np.ones(k + 1))
-        out[k] = (w / w.sum()) @ y[:k + 1]
     return out
