@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 import xmlrpc.client
-from typing import List, Optional
+from typing import List, Optional, Set, Tuple
 
 from quadrivio_description.config import ConfigError
 from quadrivio_description.lockstep_wire import ARMED_PARAM
@@ -41,10 +41,44 @@ from .analyze_cli import analyze
 from .bag import RECORD, BagError
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _ephemeral_range(path: str = "/proc/sys/net/ipv4/ip_local_port_range") -> Tuple[int, int]:
+    try:
+        with open(path) as f:
+            lo, hi = (int(x) for x in f.read().split()[:2])
+        return lo, hi
+    except (OSError, ValueError):
+        return 32768, 60999  # Linux's default
+
+
+_PORTS_GIVEN: Set[int] = set()  # this process's earlier answers, not yet bound by their nodes
+
+
+def _free_port(start: Optional[int] = None) -> int:
+    """A port free now and outside the kernel's ephemeral range. A port the kernel hands
+    out for ``bind(0)`` is released here and only bound later by a node: meanwhile any
+    outgoing connection of the run (XML-RPC, TCPROS) may be given it as its local port, and
+    the emulated PLC then failed with "Address already in use" (a fresh-clone run of
+    test_experiment did). Below the range only an explicit bind can take it."""
+    lo, _ = _ephemeral_range()
+    base = max(1024, lo - 8192)
+    span = lo - base
+    if span <= 0:  # no room below the range on this machine: the old way
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            return s.getsockname()[1]
+    first = (os.getpid() * 7919 if start is None else start) % span  # parallel runs start apart
+    for i in range(span):
+        port = base + (first + i) % span
+        if port in _PORTS_GIVEN:
+            continue
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        _PORTS_GIVEN.add(port)
+        return port
+    raise RuntimeError(f"no free TCP port in {base}-{lo - 1}")
 
 
 class _TimeoutTransport(xmlrpc.client.Transport):
