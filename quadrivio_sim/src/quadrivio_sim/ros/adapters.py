@@ -31,7 +31,10 @@ Processes. ``sensor_adapters`` hosts several adapters in one process, still outs
 simulator (the paper's layer 2), which is how ``adapters.launch`` runs them: every Python
 process pays for each /clock tick, its timer threads and its connections, whatever it
 publishes (about 0.014 CPU s per simulated second each, measured), and five adapters in
-one process pay it once. Its parameters, after costmap_2d's plugins::
+one process pay it once. Its inputs are read by one thread
+(``quadrivio_description.ros.receiver``): they all arrive with the simulator's step, and
+with a rospy thread per input the threads woken together fought for the GIL (a sixth
+less CPU for the process). Its parameters, after costmap_2d's plugins::
 
     adapters: [{name: imu_adapter, type: imu}, {name: laser_front, type: laser}, ...]
     imu_adapter: {...the adapter's parameters, config/imu.yaml...}
@@ -57,7 +60,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
-from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros import diagnostics, lockstep, receiver
 from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
@@ -420,8 +423,11 @@ def hosted_slots(params: Dict[str, Any], namespace: str) -> List[Tuple[str, Slot
 
 def main(kind: str = "") -> None:
     """``kind`` "": the host (``sensor_adapters``); else one adapter as its own node."""
+    if receiver.wanted():
+        receiver.install()  # one thread reads every input; before init_node: /clock's too
     rospy.init_node(kind or "sensor_adapters")
-    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    if lockstep.install() is not None:  # a no-op unless sim.launch lockstep:=true
+        receiver.release()  # a round waits in the command's callback for the clock and its inputs
     if kind:
         slots = [(NODE_KINDS[kind], Slot(rospy.get_name(), private_params(), ""))]
     else:
