@@ -197,3 +197,21 @@ def test_install_hands_rospys_connections_to_one_receiver_and_release_without_on
     assert calls == ["cb"]  # after release, rospy's loop in rospy's thread
     assert c.receive_loop.__func__ is Conn.receive_loop  # restored
     monkeypatch.setattr(R, "_receiver", None)
+
+
+def test_a_callback_that_raises_ends_neither_its_connection_nor_the_others(receiver):
+    sink = Sink()
+    bad, bad_peer = subscriber("/bad")
+    good, good_peer = subscriber("/good")
+
+    def explode(msgs, conn):
+        raise RuntimeError("a callback's bug")
+    receiver.add(bad, explode)
+    receiver.add(good, sink)
+    bad_peer.sendall(frame("x"))
+    good_peer.sendall(frame("1"))
+    wait(lambda: sink.of("/good") == ["1"])
+    bad_peer.sendall(frame("y"))
+    good_peer.sendall(frame("2"))
+    wait(lambda: sink.of("/good") == ["1", "2"])
+    assert bad.stat_num_msg == 2 and not bad.done and receiver.handed_back == 0

@@ -47,6 +47,7 @@ import os
 import selectors
 import socket
 import threading
+import traceback
 from typing import Callable, Dict, List, Optional, Tuple
 
 _log = logging.getLogger("rospy.quadrivio.receiver")
@@ -111,11 +112,15 @@ class Receiver:
                 events = []
             self.wakeups += 1
             for key, _mask in events:
-                if key.data is None:
-                    self._take_pending()
-                    continue
-                conn, cb = key.data
-                self._read(key.fd, conn, cb)
+                # Nothing one connection does may end the thread that reads all of them
+                try:
+                    if key.data is None:
+                        self._take_pending()
+                        continue
+                    conn, cb = key.data
+                    self._read(key.fd, conn, cb)
+                except Exception:  # noqa: BLE001
+                    _log.error("receiver: %s", traceback.format_exc())
             self._sweep()
         for fd in list(self._conns):
             self._drop(fd)
@@ -199,7 +204,10 @@ class Receiver:
         if conn.is_latched:
             conn.latch = msgs[-1]
         if not conn.done and not self._is_shutdown():
-            cb(msgs, conn)
+            try:
+                cb(msgs, conn)
+            except Exception:  # noqa: BLE001 - as rospy's receive_loop: logged, the connection read on
+                _log.error("[%s] callback failed: %s", conn.name, traceback.format_exc())
 
     def _to_rospy(self, conn, cb: Callable) -> None:
         """A healthy connection back to rospy's receive_loop (what was read of a message
