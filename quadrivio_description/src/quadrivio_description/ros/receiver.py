@@ -50,6 +50,11 @@ import threading
 import traceback
 from typing import Callable, Dict, List, Optional, Tuple
 
+import rospy
+import rospy.impl.tcpros_pubsub as pubsub
+from genpy import DeserializationError
+from rospy.exceptions import TransportTerminated
+
 _log = logging.getLogger("rospy.quadrivio.receiver")
 
 
@@ -70,7 +75,6 @@ class Receiver:
         self._conns: Dict[int, Tuple[object, Callable]] = {}  # fd -> (conn, callback)
         self._taking = True  # False after release(): connections go to rospy's threads
         self.handed_back = 0  # connections given back to rospy's receive_loop
-        self.wakeups = 0
         self._thread = threading.Thread(target=self._run, name="receiver", daemon=True)
         self._thread.start()
 
@@ -110,7 +114,6 @@ class Receiver:
             except OSError as exc:  # EBADF: a socket closed under the selector; swept below
                 _log.debug("receiver select: %s", exc)
                 events = []
-            self.wakeups += 1
             for key, _mask in events:
                 # Nothing one connection does may end the thread that reads all of them
                 try:
@@ -169,9 +172,6 @@ class Receiver:
                 self._drop(fd)
 
     def _read(self, fd: int, conn, cb: Callable) -> None:
-        from rospy.exceptions import TransportTerminated
-        from genpy import DeserializationError
-
         sock, b, p = conn.socket, conn.read_buff, conn.protocol
         if conn.done or sock is None:
             self._drop(fd)
@@ -221,8 +221,6 @@ class Receiver:
         threading.Thread(target=conn.receive_loop, args=(cb,), name=conn.name, daemon=True).start()
 
     def _hand_back(self, fd: int, conn, cb: Callable, exc: BaseException) -> None:
-        from rospy.exceptions import TransportTerminated
-
         self._drop(fd)
         self.handed_back += 1
         hung_up = isinstance(exc, TransportTerminated) or (isinstance(exc, OSError) and exc.errno in (
@@ -248,14 +246,12 @@ _receiver: Optional[Receiver] = None
 
 
 def install() -> Receiver:
-    """Make this process's subscriptions, those made before and after, be read by one
-    :class:`Receiver` thread (see the module docstring). Idempotent."""
+    """Make the subscriptions this process connects from now on be read by one
+    :class:`Receiver` thread (see the module docstring); call it before ``init_node`` so
+    that /clock's is among them. Idempotent."""
     global _receiver
     if _receiver is not None:
         return _receiver
-    import rospy
-    import rospy.impl.tcpros_pubsub as pubsub
-
     original = pubsub.robust_connect_subscriber
     _receiver = receiver = Receiver(rospy.is_shutdown)
 
