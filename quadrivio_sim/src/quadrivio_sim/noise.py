@@ -310,6 +310,12 @@ class MagNoise:
 class LaserNoiseParams:
     range_std: float = param(0.02, lo=0.0, hi=10.0, unit="m", doc="range noise")
     dropout: float = param(0.002, lo=0.0, hi=1.0, doc="probability that a return is lost (reported as +inf)")
+    silent: Tuple[Tuple[float, float], ...] = param(
+        (), unit="s", doc="[[start, end], ...] sim time during which the scanner publishes nothing (a dead "
+                          "scanner or cable)")
+
+    def is_silent(self, t: float) -> bool:
+        return any(a <= t < b for a, b in self.silent)
 
 
 class LaserNoise:

@@ -29,6 +29,7 @@ from quadrivio_description.site import SiteParams, load_site
 from quadrivio_description.vehicle import VehicleParams
 from quadrivio_plc import protocol as P
 
+from .actors import ActorMotion, ActorParams
 from .actuators import ActuatorParams, LowLevelControl
 from .noise import Latency
 from .plc_emulator import PlcLogic, PlcParams
@@ -61,6 +62,8 @@ class SimParams:
     terrain: TerrainParams = param(TerrainParams())
     spawn: Pose2D = param(Pose2D(), doc="initial pose of base_link in the map frame")
     obstacles: Tuple[Obstacle, ...] = param((), doc="static boxes and cylinders (trees, buildings)")
+    actors: Tuple[ActorParams, ...] = param((), doc="people, animals, vehicles: standing or moving (actors.py)")
+    actors_rate: float = param(10.0, lo=1.0, hi=1000.0, unit="Hz", doc="/ground_truth/actors rate")
     map: MapParams = param(MapParams(), doc="a map_server map whose occupied cells become static obstacles")
     seed: int = param(0, lo=0, hi=2 ** 63 - 1, doc="seed of every random draw in the simulator (terrain)")
     ground_truth_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="/ground_truth/odom rate")
@@ -77,6 +80,28 @@ class GroundTruth:
     orientation: Tuple[float, float, float, float]  # x, y, z, w
     linear_velocity: Tuple[float, float, float]  # [m/s] in map
     angular_velocity: Tuple[float, float, float]  # [rad/s] in map
+
+
+@dataclass(frozen=True)
+class ActorSample:
+    name: str
+    kind: str  # person | animal | vehicle | object | obstacle (a static scenario obstacle)
+    shape: str  # cylinder | box
+    x: float
+    y: float
+    yaw: float
+    size: Tuple[float, float, float]  # length (a cylinder's diameter), width, height [m]
+    speed: float  # [m/s]
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """The vehicle began to touch a body that is not the ground."""
+    stamp: float
+    body: str
+    kind: str  # person | animal | vehicle | object | obstacle | map
+    speed: float  # [m/s] the vehicle's horizontal speed at that step
+    position: Tuple[float, float]  # base_link [m] in the map frame
 
 
 @dataclass(frozen=True)
@@ -110,7 +135,10 @@ class Simulator:
             blocks = obstacles_from_grid(grid, params.map.occupied, params.map.tree_size)
         self.map_blocks = blocks
         self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
-                           params.spawn, blocks, params.map.obstacle_height)
+                           params.spawn, blocks, params.map.obstacle_height, params.actors)
+        self.actors = [ActorMotion(a) for a in params.actors]
+        self.touching: List[int] = []
+        self.contacts: List[ContactEvent] = []  # every contact of the run, in order
         self.control = LowLevelControl(actuators, vehicle, params.plc.cycle)
         self.plc = PlcLogic(params.plc, self.control)
         s = params.sensors
@@ -131,6 +159,8 @@ class Simulator:
             ("imu", steps_per_period(s.imu.rate, dt, "sensors.imu.rate"), self.imu.sample),
             ("mag", steps_per_period(s.mag.rate, dt, "sensors.mag.rate"), self.mag.sample),
         ]
+        if params.actors or params.obstacles:
+            self.outputs.append(("actors", steps_per_period(params.actors_rate, dt, "actors_rate"), self._actors))
         scan_steps = steps_per_period(s.lasers.rate, dt, "sensors.lasers.rate")
         for laser in self.lasers:
             self.outputs.append(("scan", scan_steps, laser.sample))
@@ -159,6 +189,9 @@ class Simulator:
         """Back to t = 0 with the vehicle at rest at ``spawn`` (default: the configured spawn)."""
         self.steps = 0
         self.world.reset(spawn)
+        self.actors = [ActorMotion(a) for a in self.params.actors]
+        self.touching = []
+        self._move_actors()
         self.plc.reset(0.0)
         self.imu.reset()
         self._plc_link_start()
@@ -176,10 +209,21 @@ class Simulator:
             w.set_handlebar(act.handlebar + m.handlebar_offset)
             w.set_drive_torque(act.drive_torque)
             w.set_brake(act.brake_torque)
+        if self.actors:
+            self._move_actors()
+        v_before = w.base_state()[2]  # the speed at impact: the contact's step has slowed it already
         w.step()
         self.steps += 1
         t = self.t
         due = []
+        touching = w.touching()
+        if touching != self.touching:
+            for body in touching:
+                if body not in self.touching:
+                    ev = self._contact(t, body, v_before)
+                    self.contacts.append(ev)
+                    due.append(("contact", ev))
+            self.touching = touching
         for name, period, sampler in self.outputs:
             if self.steps % period == 0 and self.enabled[name]:
                 if name == "plc_state" and not self.plc_link.zero:
@@ -191,6 +235,29 @@ class Simulator:
         while self.plc_pending and self.plc_pending[0][0] <= t + 1e-9:
             due.append(("plc_state", self.plc_pending.popleft()[1]))
         return due
+
+    def _move_actors(self) -> None:
+        pos = self.world.base_state()[0]
+        for k, (motion, a) in enumerate(zip(self.actors, self.params.actors)):
+            before = motion.last
+            pose = motion.update(self.t, (pos[0], pos[1]))
+            if before is None or (pose.x, pose.y, pose.yaw) != (before.x, before.y, before.yaw):
+                self.world.move_actor(k, pose.x, pose.y, pose.yaw, a.dims[2])
+
+    def _contact(self, t: float, body: int, v) -> ContactEvent:
+        name, kind = self.world.body_names.get(body, (f"body {body}", "unknown"))
+        pos = self.world.base_state()[0]
+        return ContactEvent(t, name, kind, (v[0] ** 2 + v[1] ** 2) ** 0.5, (pos[0], pos[1]))
+
+    def _actors(self, t: float) -> List[ActorSample]:
+        out = []
+        for motion, a in zip(self.actors, self.params.actors):
+            p = motion.pose(t)
+            out.append(ActorSample(a.name, a.kind, a.geometry, p.x, p.y, p.yaw, a.dims, p.speed))
+        for k, o in enumerate(self.params.obstacles):
+            dims = (2.0 * o.size[0], 2.0 * o.size[0], o.size[2]) if o.kind == "cylinder" else tuple(o.size)
+            out.append(ActorSample(f"obstacle {k}", "obstacle", o.kind, o.xy[0], o.xy[1], o.yaw, dims, 0.0))
+        return out
 
     def _ground_truth(self, t: float) -> GroundTruth:
         pos, orn, v, w = self.world.base_state()

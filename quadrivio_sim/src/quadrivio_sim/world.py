@@ -139,9 +139,10 @@ class World:
     def __init__(self, vehicle: VehicleParams, urdf_text: str, physics: PhysicsParams,
                  terrain: TerrainParams, rng: np.random.Generator,
                  obstacles: Sequence[Obstacle] = (), spawn: Pose2D = Pose2D(), map_blocks: Sequence = (),
-                 block_height: float = 1.5) -> None:
+                 block_height: float = 1.5, actors: Sequence = ()) -> None:
         """``map_blocks``: obstacles made from a map's occupied cells
-        (:func:`quadrivio_navigation.maps.obstacles_from_grid`), ``block_height`` [m] tall."""
+        (:func:`quadrivio_navigation.maps.obstacles_from_grid`), ``block_height`` [m] tall;
+        ``actors``: :class:`quadrivio_sim.actors.ActorParams`, bodies moved by :meth:`move_actor`."""
         self.v = vehicle
         self.physics = physics
         self.terrain = terrain
@@ -167,6 +168,16 @@ class World:
             self._make_obstacle(self.rays, o)
         for v, i in meshes:
             self._make_mesh(self.rays, v, i)
+        # Actors: one body in each client (the vehicle hits one, the sensors see the other)
+        self.actor_ids = [(self._make_actor(self.pb, a), self._make_actor(self.rays, a)) for a in actors]
+        # Every body but the ground, by id in the physics client: (name, kind) for contacts
+        self.body_names: Dict[int, Tuple[str, str]] = {}
+        for k, (o, b) in enumerate(zip(obstacles, self.obstacle_ids)):
+            self.body_names[b] = (f"obstacle {k} ({o.kind} at {o.xy[0]:g}, {o.xy[1]:g})", "obstacle")
+        for k, b in enumerate(self.map_ids):
+            self.body_names[b] = (f"map obstacles (tile {k})", "map")
+        for a, (b, _) in zip(actors, self.actor_ids):
+            self.body_names[b] = (a.name, a.kind)
         self.frames = fixed_frames(urdf_text)
         self.robot = self._load_vehicle(urdf_text)
         self._index_joints()
@@ -203,6 +214,30 @@ class World:
                                   baseOrientation=pb.getQuaternionFromEuler([0.0, 0.0, o.yaw]))
         pb.changeVisualShape(body, -1, rgbaColor=[0.3, 0.5, 0.25, 1.0] if o.kind == "cylinder" else [0.6, 0.6, 0.6, 1.0])
         return body
+
+    def _make_actor(self, pb, a) -> int:
+        length, width, height = a.dims
+        if a.geometry == "cylinder":
+            shape = pb.createCollisionShape(pybullet.GEOM_CYLINDER, radius=0.5 * length, height=height)
+        else:
+            shape = pb.createCollisionShape(pybullet.GEOM_BOX, halfExtents=[0.5 * length, 0.5 * width, 0.5 * height])
+        x, y = a.waypoints[0]
+        body = pb.createMultiBody(0, shape, basePosition=[x, y, self.ground_height(x, y) + 0.5 * height])
+        colour = {"person": [0.8, 0.2, 0.2, 1.0], "animal": [0.5, 0.35, 0.2, 1.0]}.get(a.kind, [0.2, 0.3, 0.7, 1.0])
+        pb.changeVisualShape(body, -1, rgbaColor=colour)
+        return body
+
+    def move_actor(self, k: int, x: float, y: float, yaw: float, height: float) -> None:
+        """Put actor ``k`` at (x, y, yaw) on the ground (both clients)."""
+        q = (0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw))
+        pos = (x, y, self.ground_height(x, y) + 0.5 * height)
+        for body, cid in zip(self.actor_ids[k], (self.cid, self.rays_cid)):
+            pybullet.resetBasePositionAndOrientation(body, pos, q, physicsClientId=cid)
+
+    def touching(self) -> List[int]:
+        """The bodies other than the ground that touch the vehicle now (their ids, sorted)."""
+        pts = pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self.cid)
+        return sorted({c[2] for c in pts if c[2] != self.ground and c[2] != self.robot})
 
     TILE = 25.0  # [m] map obstacles are merged into one static mesh per tile of this size
 

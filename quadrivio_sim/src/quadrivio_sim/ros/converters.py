@@ -143,3 +143,32 @@ def image(s: ImageSample, baseline: float, right: bool) -> Tuple[Image, CameraIn
 
 
 __all__: List[str] = ["Frames", "ground_truth", "imu", "gps", "mag", "scan", "joints", "image", "stamp"]
+
+
+def actors(samples, map_frame: str, t: float):
+    """``ground_truth/actors`` (quadrivio_sim/ActorArray) from :class:`ActorSample` s."""
+    from quadrivio_sim.msg import Actor, ActorArray
+
+    m = ActorArray()
+    m.header.stamp = stamp(t)
+    m.header.frame_id = map_frame
+    for a in samples:
+        out = Actor()
+        out.name, out.kind, out.shape = a.name, a.kind, a.shape
+        out.pose.x, out.pose.y, out.pose.theta = a.x, a.y, a.yaw
+        out.length, out.width, out.height = a.size
+        out.speed = a.speed
+        m.actors.append(out)
+    return m
+
+
+def contact(e, map_frame: str):
+    """``ground_truth/contacts`` (quadrivio_sim/Contact) from a :class:`ContactEvent`."""
+    from quadrivio_sim.msg import Contact
+
+    m = Contact()
+    m.header.stamp = stamp(e.stamp)
+    m.header.frame_id = map_frame
+    m.body, m.kind, m.speed = e.body, e.kind, e.speed
+    m.position.x, m.position.y = e.position
+    return m

@@ -43,6 +43,9 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
 * ``~run_until`` (float, 0): pause when sim time reaches it (0: never).
 
 Publishes: ``/clock`` (rosgraph_msgs/Clock), ``ground_truth/odom`` (nav_msgs/Odometry),
+``ground_truth/actors`` (quadrivio_sim/ActorArray: the scenario's actors and obstacles, at
+``actors_rate``, when it has any), ``ground_truth/contacts`` (quadrivio_sim/Contact: each
+contact of the vehicle with a body that is not the ground, as it begins),
 ``joint_states`` (sensor_msgs/JointState), ``/tf``, ``sim/gps`` (quadrivio_sim/RawGps),
 ``sim/imu`` (sensor_msgs/Imu), ``sim/mag`` (sensor_msgs/MagneticField),
 ``sim/scan/front|rear`` (sensor_msgs/LaserScan), ``sim/stereo/left|right/image_raw``
@@ -84,6 +87,7 @@ from quadrivio_sim.srv import Step, StepResponse
 from . import converters as C
 from .clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
+from ..actors import load_actors
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import LoopHold, Pacer, StaleSlowdown
@@ -150,6 +154,12 @@ class SimNode:
         node_raw, sim_raw = split_params(raw, NodeParams)
         self.np: NodeParams = node_params(NodeParams, node_raw)
         self.sim_params: SimParams = with_scenario(node_params(SimParams, sim_raw), "sim")
+        if rospy.has_param("/scenario/actors"):  # the scenario's top-level actors: section
+            try:
+                actors = load_actors(rospy.get_param("/scenario/actors"), "/scenario/actors")
+            except ConfigError as exc:
+                fatal(f"bad scenario parameter: {exc}")
+            self.sim_params = dataclasses.replace(self.sim_params, actors=self.sim_params.actors + actors)
         # the scenario's map (the map_server's too) populates the world with its obstacles
         world_map = with_scenario(self.sim_params.map, "map")
         world_map = dataclasses.replace(world_map, file=resolve_map_file(world_map.file,
@@ -213,6 +223,10 @@ class SimNode:
         self.pub_clock = direct_publisher("/clock", Clock, queue_size=1000)
         self.pub_gt = direct_publisher("ground_truth/odom", Odometry, queue_size=50)
         self.pub_joints = direct_publisher("joint_states", JointState, queue_size=10)
+        from quadrivio_sim.msg import ActorArray, Contact
+
+        self.pub_actors = direct_publisher("ground_truth/actors", ActorArray, queue_size=10)
+        self.pub_contacts = rospy.Publisher("ground_truth/contacts", Contact, queue_size=100)
         self.pub_gps = direct_publisher("sim/gps", RawGps, queue_size=50)
         self.pub_imu = direct_publisher("sim/imu", Imu, queue_size=200)
         self.pub_mag = direct_publisher("sim/mag", MagneticField, queue_size=100)
@@ -459,6 +473,12 @@ class SimNode:
             self.pub_scan[s.frame].publish(C.scan(s))
         elif name == "joint_states":
             self.pub_joints.publish(C.joints(s))
+        elif name == "actors":
+            self.pub_actors.publish(C.actors(s, f.map, self.sim.t))
+        elif name == "contact":
+            self.pub_contacts.publish(C.contact(s, f.map))
+            rospy.logwarn("contact: the vehicle touched %s (%s) at %.2f m/s, t = %.2f s", s.body, s.kind, s.speed,
+                          s.stamp)
         elif name == "image":
             img, info = C.image(s, self.baseline, s.frame == self.sim_params.sensors.cameras.frames[-1])
             self.pub_image[s.frame].publish(img)
