@@ -225,9 +225,11 @@ class PurePursuit:
 
     # ------------------------------------------------------------------ update
     def update(self, x: float, y: float, theta: float, speed: float, pose_age: float = 0.0,
-               t: Optional[float] = None) -> Command:
+               t: Optional[float] = None, held: bool = False) -> Command:
         """One cycle from the pose (x, y, heading), the speed [m/s, signed], the pose's age
-        [s] and, for slew-limited setpoints, the time [s]."""
+        [s] and, for slew-limited setpoints, the time [s]. ``held``: something downstream
+        (the obstacle guard) holds the vehicle below the speed asked for, so not getting
+        along the path is no stall."""
         if self.status in (DONE, ABORTED):
             return self._done_command()
         if pose_age > self.p.max_pose_age:
@@ -253,7 +255,7 @@ class PurePursuit:
                 self.k += 1  # the cusp: take the next segment, from rest
                 self.tracker = Tracker(self.route.segments[self.k].path, self.p.search_window)
                 self.sp_speed = 0.0
-                return self.update(x, y, theta, speed, pose_age, t)
+                return self.update(x, y, theta, speed, pose_age, t, held)
             if last or self.stopping:
                 return self._finish(x, y, theta)
         if self.stopping and stopped:
@@ -285,7 +287,7 @@ class PurePursuit:
         v_sp *= d
         v_sp, h = self._slew(v_sp, h, t)
         if t is not None:
-            stalled = self._stalled(t, v_sp)
+            stalled = self._stalled(t, 0.0 if held else v_sp)
             if stalled:
                 return self.abort(stalled, xte)
         return Command(v_sp, h, 0.0, FOLLOWING, xte, self._progress(), self._remaining(),

@@ -1,5 +1,5 @@
 """Excitation node: plays an actuator-calibration program open loop on
-``vehicle/setpoint/auto`` (:mod:`quadrivio_navigation.excitation`).
+``vehicle/setpoint/request`` (:mod:`quadrivio_navigation.excitation`; the obstacle guard passes it on).
 
 Parameters: :class:`quadrivio_navigation.excitation.ExcitationParams` (private; a
 scenario's ``excitation:`` section overrides). A bad program (a setpoint beyond
@@ -9,7 +9,7 @@ The program's clock starts when the PLC reports AUTO (``vehicle/state``), so no 
 lost to the mode change; it stops and holds the brake if the PLC leaves AUTO (a driver's
 takeover, the roll-over monitor, a lost link) and does not resume by itself. When the
 clock moves back (the simulator's ``~reset``) the program starts over. Publishes
-``vehicle/setpoint/auto`` (quadrivio_plc/Setpoint) at ``~rate``, with the program's phase
+``vehicle/setpoint/request`` (quadrivio_plc/Setpoint) at ``~rate``, with the program's phase
 in ``/diagnostics``.
 """
 
@@ -43,7 +43,7 @@ class ExcitationNode:
         self.stopped = ""  # why the program was cut short
         self.done = False
         self.mode = -1
-        self.pub = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
+        self.pub = direct_publisher("vehicle/setpoint/request", Setpoint, queue_size=10)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         on_clock_jump(self._on_clock_jump)
         self.diag = diagnostics.updater()

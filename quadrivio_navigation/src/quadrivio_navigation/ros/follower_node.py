@@ -11,8 +11,10 @@ heading, so a step against it is driven in reverse; a new path replaces the rout
 where the vehicle is, continuing from the current setpoints; an empty path stops the
 vehicle), ``planner/status`` (quadrivio_navigation/PlannerStatus: when planning for a new
 goal fails, the vehicle stops on its current path), ``localization/predicted``
-(nav_msgs/Odometry).
-Publishes: ``vehicle/setpoint/auto`` (quadrivio_plc/Setpoint) and ``follower/status``
+(nav_msgs/Odometry), ``guard/status`` (quadrivio_navigation/GuardStatus: while the
+obstacle guard holds the vehicle, standing still is no stall).
+Publishes: ``vehicle/setpoint/request`` (quadrivio_plc/Setpoint: the obstacle guard passes it on
+to ``vehicle/setpoint/auto``) and ``follower/status``
 (quadrivio_navigation/FollowerStatus) at ``~rate`` once a path and a pose exist.
 
 A pose with a non-finite value or a stamp ahead of the clock is dropped (and counted in
@@ -41,7 +43,7 @@ from quadrivio_description.ros.timer import check_clock, guarded_timer, input_gu
 from quadrivio_plc.msg import Setpoint
 
 from ..follower import ABORTED, FOLLOWING, STATUS_NAMES, FollowerConfig, PurePursuit, make_route
-from ..msg import FollowerStatus, PlannerStatus
+from ..msg import FollowerStatus, GuardStatus, PlannerStatus
 from .conversions import yaw_of
 
 
@@ -55,11 +57,13 @@ class FollowerNode:
         self.guard = input_guard()
         self.pose: Optional[Odometry] = None
         self.last_status = None
-        self.pub_sp = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
+        self.pub_sp = direct_publisher("vehicle/setpoint/request", Setpoint, queue_size=10)
         self.pub_status = direct_publisher("follower/status", FollowerStatus, queue_size=10)
         rospy.Subscriber("planner/path", PathMsg, self._on_path, queue_size=1)
         rospy.Subscriber("planner/status", PlannerStatus, self._on_planner, queue_size=5)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
+        self.held_until = -1.0  # [s] sim time until which the guard holds the vehicle back
+        rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
         guarded_timer(1.0 / self.p.rate, self._tick, "follower cycle")
         on_clock_jump(self._on_clock_jump)
         self.diag = diagnostics.updater()
@@ -131,6 +135,13 @@ class FollowerNode:
                 pp.stop(f"planner failed: {m.reason}")
                 rospy.logwarn("planning for the new goal failed: stopping (%s)", m.reason)
 
+    def _on_guard(self, m: GuardStatus) -> None:
+        # Held below the follower's own floor: no progress is the guard's doing, not a stall
+        # (for a guard status period and a bit: statuses come with every scan, 10-20 Hz)
+        if m.action in (GuardStatus.STOP, GuardStatus.HOLD, GuardStatus.FAULT) or \
+                m.speed_limit < self.p.pure_pursuit.min_speed:
+            self.held_until = m.header.stamp.to_sec() + 0.3
+
     def _on_pose(self, m: Odometry) -> None:
         check_clock()
         p = m.pose.pose.position
@@ -153,7 +164,7 @@ class FollowerNode:
             if not all(map(math.isfinite, values)):
                 c = pp.abort("the predicted pose is not finite")
             else:
-                c = pp.update(*values, pose_age=age, t=now.to_sec())
+                c = pp.update(*values, pose_age=age, t=now.to_sec(), held=now.to_sec() <= self.held_until)
         sp = Setpoint()
         sp.header.stamp = now
         sp.speed, sp.handlebar, sp.brake = c.speed, c.handlebar, c.brake

@@ -1,0 +1,459 @@
+"""The obstacle guard: a protective stop on the setpoint path that nothing upstream can bypass.
+
+The follower (or the excitation program) *requests* setpoints; the guard passes each one
+on to the PLCClient, limited by what the lasers see, the operating zone and its own
+inputs' health. Fields are computed from the motion, not drawn
+(:mod:`quadrivio_navigation.fields`): with ``d_free`` the distance the footprint can
+drive along its path before it touches a laser point,
+
+* **protective field** ``d_prot = d_stop(v, brake) + margin`` at the measured speed ``v``:
+  ``d_free < d_prot`` while moving is a protective stop (STOP: speed 0, full brake);
+* **warning field**: the speed is limited to ``v_allow(d_free - warning_margin)`` at the
+  gentle deceleration, with the next scan's period in the reaction time, so that a
+  vehicle slowing down as told never enters its protective field at speed (SLOW);
+* after a stop (STOP or FAULT) the vehicle is held (HOLD) until the protective field of
+  the requested speed has been clear for ``clear_time``, then the speed limit is released
+  at ``release_accel``.
+
+The laser facing the motion (forward: the scanners that cover ``forward``; reverse:
+``reverse``) must be fresh: a scanner silent for ``scan_timeout``, blinded (more than
+``blind_fraction`` of its rays invalid), or without a transform, a silent vehicle state
+or, with an operating zone, a silent or too uncertain pose, is a FAULT: speed 0, brake,
+with the reason.
+
+**Operating zone** (ISO 18497-3's "autonomous operating zone"): a simple polygon in the
+map frame. The footprint, grown by ``zone_sigmas`` times the pose's horizontal standard
+deviation, swept over the protective distance from the predicted pose, must stay inside
+it; otherwise the vehicle stops (field "zone"). So does a position standard deviation
+above ``max_position_sd``: the estimate cannot tell where the edge is.
+
+The core is ROS-free: :class:`Guard` takes plain numbers and returns a :class:`Decision`
+and the setpoint to send.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import ConfigError, param
+from quadrivio_description.vehicle import GRAVITY, VehicleParams
+
+from .costmap import Footprint
+from .fields import (ScanPoints, allowed_speed, effective_decel, free_distance, inside, stopping_distance, sweep)
+
+CLEAR, SLOW, STOP, HOLD, FAULT = 0, 1, 2, 3, 4
+ACTION_NAMES = {CLEAR: "CLEAR", SLOW: "SLOW", STOP: "STOP", HOLD: "HOLD", FAULT: "FAULT"}
+
+
+@dataclass(frozen=True)
+class ScannerParams:
+    topic: str = param(doc="the LaserScan topic (relative)")
+    frame: str = param(doc="the frame_id its scans must carry")
+    covers: str = param("forward", choices=("forward", "reverse", "both"),
+                        doc="the direction of motion this scanner guards (its field of view)")
+
+
+@dataclass(frozen=True)
+class GuardParams:
+    scanners: Tuple[ScannerParams, ...] = param(
+        (ScannerParams("scan/front", "laser_front", "forward"), ScannerParams("scan/rear", "laser_rear", "reverse")),
+        doc="the laser scanners")
+    padding: float = param(0.15, lo=0.0, hi=2.0, unit="m",
+                           doc="the footprint grown on every side (tracking error, the body's shape)")
+    step: float = param(0.05, lo=0.01, hi=0.5, unit="m", doc="sweep step along the path")
+    brake_decel: float = param(3.5, lo=0.2, hi=15.0, unit="m/s^2",
+                               doc="deceleration of a full-brake stop on level ground (measured in the simulator: "
+                                   "4.2-4.4 from 2-3 m/s; lower for wet grass)")
+    slow_decel: float = param(1.0, lo=0.1, hi=15.0, unit="m/s^2",
+                              doc="deceleration the warning field plans with (below the speed loop's ramp)")
+    brake_latency: float = param(0.15, lo=0.0, hi=2.0, unit="s",
+                                 doc="from the guard's decision to the brakes acting: link, PLC cycle, brake servo "
+                                     "dead time and rise (the scan's own age is added per scan)")
+    margin: float = param(0.3, lo=0.0, hi=5.0, unit="m", doc="protective field beyond the stopping distance")
+    warning_margin: float = param(0.8, lo=0.0, hi=10.0, unit="m",
+                                  doc="where a slowed vehicle comes to rest in front of an obstacle")
+    scan_period: float = param(0.1, lo=0.005, hi=2.0, unit="s",
+                               doc="the scanners' period (the warning field allows for a scan this late)")
+    scan_timeout: float = param(0.35, lo=0.01, hi=10.0, unit="s",
+                                doc="a scanner silent for this long (by the stamp of its last scan) stops the vehicle")
+    max_scan_age: float = param(0.25, lo=0.01, hi=10.0, unit="s", doc="a scan older than this on arrival is stale")
+    max_future: float = param(0.05, lo=0.0, hi=10.0, unit="s", doc="a stamp further ahead of the clock is refused")
+    state_timeout: float = param(0.2, lo=0.01, hi=10.0, unit="s",
+                                 doc="the vehicle state (measured speed) silent for this long stops the vehicle")
+    blind_fraction: float = param(0.5, lo=0.0, hi=1.0,
+                                  doc="more than this fraction of a scan's rays invalid (NaN): blinded, stop")
+    clear_time: float = param(1.0, lo=0.0, hi=60.0, unit="s", doc="after a stop, the field must stay clear this long")
+    release_accel: float = param(0.5, lo=0.05, hi=10.0, unit="m/s^2", doc="how fast the limit rises after a hold")
+    stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
+    stop_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake demand of a stop")
+    slope_unknown: float = param(0.15, lo=0.0, hi=1.0, unit="rad",
+                                 doc="downhill slope assumed while the IMU is silent")
+    slope_tau: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="low-pass time constant of the slope estimate")
+    imu_timeout: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="after this the slope is slope_unknown")
+    zone: Tuple[Tuple[float, float], ...] = param(
+        (), unit="m", doc="operating zone, a simple polygon [[x, y], ...] in the map frame; empty: none")
+    zone_sigmas: float = param(2.0, lo=0.0, hi=10.0, doc="the footprint grows by this many position sds in the zone")
+    max_position_sd: float = param(1.0, lo=0.01, hi=100.0, unit="m",
+                                   doc="with a zone: stop when the pose's horizontal sd exceeds this")
+    pose_timeout: float = param(0.3, lo=0.01, hi=10.0, unit="s", doc="with a zone: the pose silent this long stops")
+
+    def __post_init__(self) -> None:
+        if self.warning_margin < self.margin:
+            raise ValueError(f"'warning_margin' = {self.warning_margin} must not be below 'margin' = {self.margin}")
+        if self.slow_decel > self.brake_decel:
+            raise ValueError(f"'slow_decel' = {self.slow_decel} must not exceed 'brake_decel' = {self.brake_decel}")
+        if not self.scanners:
+            raise ValueError("'scanners' is empty: the guard needs at least one laser")
+        if self.zone:
+            check_zone(self.zone)
+
+
+def check_zone(zone: Sequence[Sequence[float]]) -> None:
+    """Raise ConfigError unless ``zone`` is a simple polygon of at least 3 finite vertices."""
+    pts = np.asarray(zone, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 3:
+        raise ConfigError(f"the operating zone needs at least 3 [x, y] vertices, got {len(pts)}")
+    if not np.all(np.isfinite(pts)):
+        raise ConfigError("the operating zone has a vertex that is not a finite number")
+    n = len(pts)
+    for i in range(n):
+        for j in range(i + 1, n):
+            if j == i + 1 or (i == 0 and j == n - 1):
+                continue  # neighbours share a vertex
+            if _segments_cross(pts[i], pts[(i + 1) % n], pts[j], pts[(j + 1) % n]):
+                raise ConfigError(f"the operating zone is not a simple polygon: edge {i} crosses edge {j}")
+    area = 0.5 * float(np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1]))
+    if abs(area) < 1e-6:
+        raise ConfigError("the operating zone has no area")
+
+
+def _segments_cross(a, b, c, d) -> bool:
+    def orient(p, q, r):
+        return (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0])
+    o1, o2, o3, o4 = orient(a, b, c), orient(a, b, d), orient(c, d, a), orient(c, d, b)
+    return (o1 * o2 <= 0.0) and (o3 * o4 <= 0.0) and not (o1 == o2 == o3 == o4 == 0.0)
+
+
+def points_in_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule for each of the points (N x 2) against the polygon (M x 2)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0 = poly[:, 0][None, :], poly[:, 1][None, :]
+    x1, y1 = np.roll(poly[:, 0], -1)[None, :], np.roll(poly[:, 1], -1)[None, :]
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return (np.count_nonzero(crosses & (x < xc), axis=1) % 2) == 1
+
+
+def distance_to_edges(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance [m] from each point to the polygon's boundary."""
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    ab = b - a
+    denom = np.maximum(np.sum(ab * ab, axis=1), 1e-12)
+    d = points[:, None, :] - a[None, :, :]
+    u = np.clip(np.sum(d * ab[None], axis=2) / denom[None], 0.0, 1.0)
+    closest = a[None] + u[..., None] * ab[None]
+    return np.min(np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)), axis=1)
+
+
+@dataclass
+class Decision:
+    action: int
+    limit: float  # [m/s] speed limit (magnitude) on the request
+    reason: str = ""
+    field: str = ""  # "protective", "warning", "zone", "" (none)
+    free: float = math.inf  # [m] free distance along the path
+    protective: float = 0.0  # [m] protective field length at the measured speed
+    protective_request: float = 0.0  # [m] ... at the requested speed (what must be clear to release a hold)
+    warning: float = 0.0  # [m] warning field length at the requested speed
+    nearest: Optional[Tuple[float, float]] = None  # the point touched first (base_link)
+    scanner: str = ""  # which scanner saw it
+    scan_stamp: float = math.nan  # [s] the scan that saw it
+    direction: int = 0
+    slope: float = 0.0  # [rad] downhill along the motion, used in the fields
+
+
+@dataclass
+class _Scan:
+    stamp: float = -math.inf
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    invalid_fraction: float = 0.0
+    error: str = ""  # a reason it cannot be used (no transform), or ""
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    speed: float
+    handlebar: float
+    brake: float
+
+
+class Guard:
+    """The guard's state: its inputs' latest values and the stop/hold/release cycle."""
+
+    def __init__(self, p: GuardParams, vehicle: VehicleParams) -> None:
+        self.p, self.v = p, vehicle
+        self.fp = Footprint.from_vehicle(vehicle, p.padding)
+        self.body = Footprint.from_vehicle(vehicle, 0.0)
+        self.zone = np.asarray(p.zone, dtype=float) if p.zone else None
+        self.scans: Dict[str, _Scan] = {s.topic: _Scan() for s in p.scanners}
+        self.state: Optional[Tuple[float, float, float]] = None  # (stamp, speed, handlebar)
+        self.pose: Optional[Tuple[float, float, float, float, float]] = None  # (stamp, x, y, yaw, sd)
+        self.slope_est: Optional[Tuple[float, float, float, float]] = None  # (t, pitch_lp, fx_lp, dv_lp)
+        self.last_speed: Optional[Tuple[float, float]] = None
+        self.dv = 0.0  # [m/s^2] the wheel speed's last derivative
+        self.mode = CLEAR  # CLEAR (incl. SLOW), STOP, HOLD, FAULT
+        self.clear_since: Optional[float] = None
+        self.release_t: Optional[float] = None
+        self.last: Optional[Decision] = None
+        self.protective_stops = 0
+        self.fault_stops = 0
+        self.zone_stops = 0
+
+    # ---------------------------------------------------------------- inputs
+    def on_state(self, stamp: float, speed: float, handlebar: float) -> None:
+        """The measured rear wheel speed [m/s, signed] and handlebar [rad]."""
+        if self.last_speed is not None and stamp > self.last_speed[0]:
+            self.dv = (speed - self.last_speed[1]) / (stamp - self.last_speed[0])
+        self.last_speed = (stamp, speed)
+        self.state = (stamp, speed, handlebar)
+
+    def on_imu(self, stamp: float, fx: float) -> None:
+        """Specific force along base_link's x [m/s^2] (IMU, rotated into base_link): with the
+        wheel speed's derivative ``dv/dt``, ``sin(pitch) = (dv/dt - f_x) / g`` (REP-103:
+        pitch positive nose down), both low-passed with ``slope_tau``."""
+        dv = self.dv
+        if self.slope_est is None or stamp <= self.slope_est[0]:
+            self.slope_est = (stamp, 0.0, fx, dv)
+            return
+        t0, _, fx0, dv0 = self.slope_est
+        a = min(1.0, (stamp - t0) / self.p.slope_tau)
+        fx_lp = fx0 + a * (fx - fx0)
+        dv_lp = dv0 + a * (dv - dv0)
+        s = max(-1.0, min(1.0, (dv_lp - fx_lp) / GRAVITY))
+        self.slope_est = (stamp, math.asin(s), fx_lp, dv_lp)
+
+    def on_pose(self, stamp: float, x: float, y: float, yaw: float, sd: float) -> None:
+        """The predicted pose in the map frame and its horizontal standard deviation [m]."""
+        self.pose = (stamp, x, y, yaw, sd)
+
+    def on_scan(self, topic: str, stamp: float, points: Optional[ScanPoints], error: str = "") -> None:
+        """A scan's points in base_link (``None`` with ``error``: it came but cannot be used,
+        e.g. no transform). Self-returns (points inside the unpadded body) are left out."""
+        sc = self.scans[topic]
+        sc.stamp = stamp
+        sc.error = error
+        if points is None:
+            sc.points = np.zeros((0, 2))
+            return
+        xy = points.xy
+        if len(xy):
+            xy = xy[~inside(self.body, xy)]
+        sc.points = xy
+        sc.invalid_fraction = points.n_invalid / max(points.n_rays, 1)
+
+    # ---------------------------------------------------------------- decide
+    def pitch(self, now: float) -> Optional[float]:
+        if self.slope_est is None or now - self.slope_est[0] > self.p.imu_timeout:
+            return None
+        return self.slope_est[1]
+
+    def decide(self, now: float, req_speed: float, req_handlebar: float) -> Decision:
+        """The guard's decision at ``now`` for a request (speed [m/s, signed], handlebar [rad])."""
+        p = self.p
+        fault = self._fault(now)
+        st = self.state
+        v_m = st[1] if st is not None else 0.0
+        h_m = st[2] if st is not None else req_handlebar
+        if abs(v_m) >= p.stop_speed:
+            direction = 1 if v_m > 0 else -1
+        else:
+            direction = 0 if req_speed == 0.0 else (1 if req_speed > 0 else -1)
+        if fault is None and direction != 0:
+            fault = self._scanner_fault(now, direction)
+        if fault is not None:
+            return self._enter(Decision(FAULT, 0.0, fault, direction=direction), now)
+        pitch = self.pitch(now)
+        slope = p.slope_unknown if pitch is None else direction * pitch
+        v = abs(v_m)
+        if direction == 0:  # standing, nothing requested: nothing to guard; a hold stays
+            held = self.mode in (STOP, HOLD, FAULT)
+            if held:
+                self.mode, self.clear_since = HOLD, None
+            d = Decision(HOLD if held else CLEAR, 0.0 if held else math.inf, "holding after a stop" if held else "",
+                         slope=slope)
+            self.last = d
+            return d
+        points, stamps, owners = self._points(now)
+        age = max(0.0, now - min(stamps)) if stamps else 0.0
+        a_brake = effective_decel(p.brake_decel, slope)
+        a_slow = effective_decel(p.slow_decel, slope)
+        t_prot = p.brake_latency + age
+        t_warn = t_prot + p.scan_period
+        v_req = abs(req_speed)
+        d_prot = stopping_distance(v, t_prot, a_brake) + p.margin
+        d_prot_req = stopping_distance(v_req, t_prot, a_brake) + p.margin
+        d_warn = stopping_distance(max(v, v_req), t_warn, a_slow) + p.warning_margin
+        length = max(d_warn, d_prot) + p.step
+        poses = sweep(direction, h_m, req_handlebar, self.v.steering.max_rate, max(v, v_req), length, p.step,
+                      self.v.wheelbase, self.v.steering.ratio)
+        free = free_distance(self.fp, poses, points, p.step)
+        d_free = free.distance - v * age  # the vehicle drove on since the scan
+        who = owners[free.index] if free.index >= 0 else ""
+        d = Decision(CLEAR, allowed_speed(d_free - p.warning_margin, t_warn, a_slow), free=d_free,
+                     protective=d_prot, protective_request=d_prot_req, warning=d_warn, nearest=free.point,
+                     scanner=who, scan_stamp=self.scans[who].stamp if who else math.nan, direction=direction,
+                     slope=slope)
+        if v >= p.stop_speed and d_free < d_prot:
+            d.action, d.field = STOP, "protective"
+            d.reason = (f"obstacle {max(d_free, 0.0):.2f} m along the path, inside the protective field "
+                        f"({d_prot:.2f} m at {v:.2f} m/s)")
+            d.limit = 0.0
+            return self._enter(d, now)
+        if self.zone is not None:
+            z = self._zone_check(now, poses, d_prot)
+            if z:
+                d.action, d.field, d.reason, d.limit = STOP, "zone", z, 0.0
+                return self._enter(d, now)
+        if d.limit < v_req:
+            d.field = "warning"
+            d.reason = (f"obstacle {max(d_free, 0.0):.2f} m along the path in the warning field: speed limited to "
+                        f"{d.limit:.2f} m/s")
+        return self._cycle(d, now, req_speed)
+
+    def command(self, d: Decision, req_speed: float, req_handlebar: float, req_brake: float) -> Setpoint:
+        """The setpoint to send for a request under decision ``d``."""
+        if d.action in (STOP, HOLD, FAULT):
+            hold = self.state[2] if self.state is not None else req_handlebar
+            return Setpoint(0.0, hold, max(req_brake, self.p.stop_brake))
+        v = max(-d.limit, min(d.limit, req_speed))
+        return Setpoint(v, req_handlebar, req_brake)
+
+    # -------------------------------------------------------------- helpers
+    def _fault(self, now: float) -> Optional[str]:
+        p = self.p
+        if self.state is None:
+            return "no vehicle state yet (vehicle/state)"
+        age = now - self.state[0]
+        if age > p.state_timeout:
+            return f"vehicle state silent for {age:.2f} s (> {p.state_timeout} s)"
+        if self.zone is not None:
+            if self.pose is None:
+                return "no pose yet (localization/predicted), needed for the operating zone"
+            age = now - self.pose[0]
+            if age > p.pose_timeout:
+                return f"pose silent for {age:.2f} s (> {p.pose_timeout} s), needed for the operating zone"
+        return None
+
+    def _covers(self, s: ScannerParams, direction: int) -> bool:
+        return s.covers == "both" or (s.covers == "forward") == (direction > 0)
+
+    def _scanner_fault(self, now: float, direction: int) -> Optional[str]:
+        p = self.p
+        for s in p.scanners:
+            if not self._covers(s, direction):
+                continue
+            sc = self.scans[s.topic]
+            if sc.stamp == -math.inf:
+                return f"no scan yet from {s.topic}"
+            age = now - sc.stamp
+            if age > p.scan_timeout:
+                return f"{s.topic} silent for {age:.2f} s (> {p.scan_timeout} s)"
+            if sc.error:
+                return f"{s.topic}: {sc.error}"
+            if sc.invalid_fraction > p.blind_fraction:
+                return f"{s.topic} blinded: {100 * sc.invalid_fraction:.0f} % of its rays invalid"
+        return None
+
+    def _points(self, now: float):
+        """Every fresh scanner's points (each guards whatever it sees, whichever direction it
+        covers), their scans' stamps, and for each point its scanner."""
+        chunks, stamps, owners = [], [], []
+        for s in self.p.scanners:
+            sc = self.scans[s.topic]
+            if sc.error or now - sc.stamp > self.p.scan_timeout:
+                continue
+            chunks.append(sc.points)
+            stamps.append(sc.stamp)
+            owners += [s.topic] * len(sc.points)
+        pts = np.concatenate(chunks) if chunks else np.zeros((0, 2))
+        return pts, stamps, owners
+
+    def _zone_check(self, now: float, poses: np.ndarray, d_prot: float) -> str:
+        _, x, y, yaw, sd = self.pose
+        p = self.p
+        if sd > p.max_position_sd:
+            return f"position uncertain: sd {sd:.2f} m (> {p.max_position_sd} m) in the operating zone"
+        grow = p.zone_sigmas * sd
+        fp = Footprint(self.fp.front + grow, self.fp.rear + grow, self.fp.left + grow, self.fp.right + grow)
+        s = np.arange(len(poses)) * p.step
+        use = poses[s <= d_prot + p.step]
+        c, sn = math.cos(yaw), math.sin(yaw)
+        corners = []
+        for px, py, th in use:
+            corners.append(fp.corners(x + c * px - sn * py, y + sn * px + c * py, yaw + th))
+        pts = np.concatenate(corners)
+        inside = points_in_polygon(pts, self.zone)
+        if not inside.all():
+            return "the footprint would leave the operating zone within the protective distance"
+        return ""
+
+    def _enter(self, d: Decision, now: float) -> Decision:
+        """A STOP or FAULT: counted once per episode; then HOLD once stopped."""
+        if d.action == STOP and self.mode != STOP:
+            if d.field == "zone":
+                self.zone_stops += 1
+            else:
+                self.protective_stops += 1
+        if d.action == FAULT and self.mode != FAULT:
+            self.fault_stops += 1
+        self.mode = d.action
+        self.clear_since = None
+        self.release_t = None
+        self.last = d
+        return d
+
+    def _cycle(self, d: Decision, now: float, req_speed: float) -> Decision:
+        """Hold after a stop until the field has been clear for ``clear_time``, then release
+        the limit at ``release_accel``."""
+        p = self.p
+        v_m = abs(self.state[1]) if self.state is not None else 0.0
+        if self.mode in (STOP, FAULT):
+            if v_m < p.stop_speed:
+                self.mode = HOLD
+            else:
+                d.action, d.limit = self.mode, 0.0
+                d.reason = d.reason or "braking to a stop"
+                self.last = d
+                return d
+        if self.mode == HOLD:
+            clear = d.free >= d.protective_request
+            if clear:
+                if self.clear_since is None:
+                    self.clear_since = now
+                if now - self.clear_since >= p.clear_time:
+                    self.mode, self.release_t = CLEAR, now
+            else:
+                self.clear_since = None
+            if self.mode == HOLD:
+                d.action, d.limit = HOLD, 0.0
+                waited = 0.0 if self.clear_since is None else now - self.clear_since
+                d.reason = (f"holding after a stop: field clear for {waited:.1f} of {p.clear_time} s" if clear else
+                            d.reason or "holding after a stop: the field is not clear")
+                self.last = d
+                return d
+        if self.release_t is not None:
+            ramp = p.release_accel * (now - self.release_t)
+            if ramp >= abs(req_speed) or ramp >= d.limit:
+                self.release_t = None
+            else:
+                d.limit = ramp
+                d.reason = d.reason or "releasing after a stop"
+        d.action = SLOW if d.limit < abs(req_speed) - 1e-6 else CLEAR
+        self.last = d
+        return d
