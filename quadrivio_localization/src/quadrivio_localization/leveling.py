@@ -60,6 +60,7 @@ class Leveller:
         self.rejected = 0  # samples not near 1 g
         self._ts: List[float] = []  # the recent wheel speeds' times (ascending) ...
         self._vs: List[float] = []  # ... and speeds, HISTORY s or more of them
+        self.ignore_wheel = False  # the wheels slip: their speed says nothing of the body's acceleration
 
     HISTORY = 1.0  # [s] of wheel speeds kept: an IMU later than this gets the oldest
 
@@ -78,7 +79,7 @@ class Leveller:
         or a turn taken 0.15 s later the centripetal and forward terms are not its own.
         Past the newest speed by more than :meth:`stale` s: that speed and no acceleration."""
         ts, vs = self._ts, self._vs
-        if not ts:
+        if not ts or self.ignore_wheel:
             return 0.0, 0.0
         if len(ts) < 2:
             return vs[-1], 0.0

@@ -96,6 +96,11 @@ class LocalizerParams:
                                     doc="a wheel speed of 0 while the gyro's yaw rate is above this...")
     wheel_check_time: float = param(0.3, lo=0.0, hi=60.0, unit="s",
                                     doc="...for this long is a dead wheel-speed channel: odometry ignored (0: never)")
+    wheel_slip_threshold: float = param(0.8, lo=0.0, hi=10.0, unit="m/s",
+                                        doc="wheels that report this much more (or less) speed change than the IMU "
+                                            "over wheel_slip_window, or more speed than a steady stream of fixes, "
+                                            "slip: odometry ignored while it lasts (0: never)")
+    wheel_slip_window: float = param(0.5, lo=0.05, hi=10.0, unit="s", doc="the IMU test's window")
     wheel_lock_decel: float = param(12.0, lo=0.0, hi=1000.0, unit="m/s^2",
                                     doc="a wheel speed that drops faster than this is a locked wheel, not the vehicle: "
                                         "odometry ignored until it reads motion again or the vehicle would have "

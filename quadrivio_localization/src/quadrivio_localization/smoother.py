@@ -43,6 +43,7 @@ from typing import Deque, Dict, List, Optional, Tuple
 import gtsam
 import numpy as np
 
+from quadrivio_description.frames import rotate
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
@@ -57,6 +58,7 @@ __all__ = ["Localizer", "Estimate", "Counters", "CALIBRATION_NAMES", "Calibratio
 from .buffers import SampleBuffer
 from .leveling import Leveller, lowpass
 from .wheel_lock import WheelLock
+from .wheel_slip import SlipParams, WheelSlip
 from .window import FixedLagWindow
 
 X = gtsam.symbol_shorthand.X  # poses
@@ -118,6 +120,7 @@ class Counters:
     intervals_without_gyro: int = 0
     intervals_wheel_rejected: int = 0  # the wheel read 0 while the vehicle moved (Localizer.faults)
     intervals_wheel_locked: int = 0  # the wheel speed dropped faster than the vehicle can brake
+    intervals_wheel_slip: int = 0  # the wheels reported motion the IMU or the GPS denied (wheel_slip.py)
     out_of_order: int = 0
     bad_input: int = 0
     update_time: float = 0.0  # [s] wall time of the last smoother update (set by the caller)
@@ -154,6 +157,9 @@ class Localizer:
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
         self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
+        self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold)) \
+            if p.wheel_slip_threshold > 0.0 else None
+        self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.wheel_fault_since: Optional[float] = None
@@ -180,6 +186,8 @@ class Localizer:
             self.counters.out_of_order += 1
             return
         self.leveller.add_speed(t, speed)
+        if self.slip is not None:
+            self.slip.add_speed(t, speed)
         self.latest_t = max(self.latest_t, t)
 
     def add_imu(self, t: float, f: Tuple[float, float, float], w: Tuple[float, float, float]) -> None:
@@ -190,6 +198,8 @@ class Localizer:
             self.counters.out_of_order += 1
             return
         self.gyro.append(t, self.leveller.add_imu(t, f, w))
+        if self.slip is not None:
+            self.slip.add_imu(t, rotate(self.imu_mount, f)[0], rotate(self.imu_mount, w)[1], self.leveller.pitch)
         self.latest_t = max(self.latest_t, t)
 
     def add_mag(self, t: float, m: Tuple[float, float, float]) -> None:
@@ -219,6 +229,8 @@ class Localizer:
         d2 = self.p.noise.gps_drift ** 2
         ve = var_e if _finite(var_e) and var_e > 0 else default
         vn = var_n if _finite(var_n) and var_n > 0 else default
+        if self.slip is not None:
+            self.slip.add_fix(t, float(enu[0]), float(enu[1]), max(ve, vn, floor))
         self.gps_pending.append((t, enu[:2], max(ve - d2, floor), max(vn - d2, floor), int(status)))
 
     # ---------------------------------------------------------------- helpers
@@ -370,7 +382,11 @@ class Localizer:
         drift = self._vector(G(k0), values)
         samples = self._samples(t0, t1) if self.p.use_odometry else []
         dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
-        if samples and self._wheel_dead(t1, samples, dth_gyro, float(prev_b[0])):
+        slipping = self._wheel_slip(t1)
+        if samples and slipping:
+            samples = []  # the wheels turn, the vehicle does not (or not as fast)
+            self.counters.intervals_wheel_slip += 1
+        elif samples and self._wheel_dead(t1, samples, dth_gyro, float(prev_b[0])):
             samples = []  # a wheel that reads 0 while the vehicle turns says nothing true
             self.counters.intervals_wheel_rejected += 1
         elif samples and self._wheel_locked(t0, t1):
@@ -469,9 +485,25 @@ class Localizer:
         self.events.extend(events)
         return locked
 
+    def _wheel_slip(self, t: float) -> bool:
+        """Whether the wheels slip at ``t`` (:mod:`.wheel_slip`). When a slip begins the
+        estimate has ridden the false odometry for up to the test's window: the gate uses
+        the next fixes untested, as after a dead wheel, so they pull it back."""
+        if self.slip is None:
+            return False
+        was = self.slip.since is not None
+        slipping = self.slip.update(t)
+        if slipping and not was:
+            self.gate.unsettle()
+        self.leveller.ignore_wheel = slipping
+        self.events.extend(self.slip.pop_events())
+        return slipping
+
     def faults(self) -> List[str]:
         """The faults the smoother sees in its inputs now (for /diagnostics), empty when none."""
         out = []
+        if self.slip is not None and self.slip.since is not None:
+            out.append(f"wheels slip (since {self.slip.since:.1f} s): {self.slip.reason}; odometry ignored")
         if self.wheel_fault_since is not None:
             out.append(f"wheel speed reads 0 while the vehicle moves (since {self.wheel_fault_since:.1f} s): "
                        "odometry ignored")

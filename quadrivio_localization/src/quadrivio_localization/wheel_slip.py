@@ -1,0 +1,257 @@
+"""Wheels that report motion the IMU and the GPS deny: spinning against an obstacle, on mud,
+on a slope the vehicle cannot climb.
+
+Pushing against a wall the driven wheels spin at the speed the PLC asks for while the body
+stands; believed, the odometry drove the estimate through the wall at the wheels' speed,
+and the GPS gate, judging the fixes by that estimate, rejected every fix as multipath (24 m
+off in the orchard, the fixes all at the truth). Two tests, either of which starts a slip:
+
+* **IMU**: over the last ``window`` s the wheel speed changed by ``dv_w`` while the body's
+  forward acceleration, from the accelerometer with gravity taken out
+  (``dv/dt = f_x + g sin(pitch)``, REP-103 pitch positive nose down), integrates to
+  ``dv_i``: a slip when the wheel gained more than the body in the direction of motion,
+  ``sgn(v) (dv_w - dv_i) > max(threshold, fraction |dv_w|)``. A wheel that spins up while
+  the body does not accelerate, or a body that stops dead (an impact) while the wheel
+  turns on, both show within ``window`` (a wheel that loses speed the body keeps is a
+  locked one: :mod:`.wheel_lock`). The pitch is a complementary filter of its own: the
+  gyro's pitch rate, pulled toward the accelerometer's pitch (``sin(pitch) = (dv_w/dt -
+  f_x) / g``) with time constant ``pitch_tau``. On rough ground the pitch swings by degrees
+  within a second, and a pitch 3 deg off is 0.5 m/s^2: the smoother's own levelled pitch
+  (accelerometer only, low-passed over a second) lags it by that much.
+* **GPS**: the fixes of the last ``gps_window`` s, when they are mutually consistent (a
+  straight-line fit of east and north over time leaves residuals within their reported
+  noise: no jump, no burst inside), move at ``v_g``; a slip when the wheel's mean speed
+  over the same time exceeds it by more than ``max(threshold, gps_sigmas sigma_v)``, with
+  ``sigma_v`` the fitted speed's standard deviation.
+
+A slip holds until the wheel reads rest, or the body's speed integrated from the IMU since
+the slip began meets the wheel's again for ``recover_time`` within ``imu_horizon`` of its
+start (the tyres found grip; later the integration has drifted too far to tell), or the
+fixes move as fast as the wheel says. Meanwhile the smoother takes no odometry (the
+vehicle keeps its motion, give or take ``no_odometry_accel``) and uses the fixes untested.
+
+Pure and ROS-free; the smoother feeds it its wheel speeds, IMU samples and fixes in time order.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Deque, List, Optional, Tuple
+
+import numpy as np
+
+G = 9.80665  # [m/s^2]
+
+
+@dataclass(frozen=True)
+class SlipParams:
+    window: float = 0.5  # [s] the IMU test's window
+    threshold: float = 0.7  # [m/s] smallest speed discrepancy called a slip
+    fraction: float = 0.5  # [1] ... and at least this fraction of the wheel's change
+    gps_window: float = 3.0  # [s] the GPS test's window
+    gps_sigmas: float = 4.0  # [1]
+    gps_min_fixes: int = 6
+    consistency: float = 4.0  # [1] mean squared normalised residual of the fixes' line fit
+    recover_time: float = 1.0  # [s]
+    pitch_tau: float = 2.0  # [s] the complementary filter's time constant
+    imu_horizon: float = 3.0  # [s] the IMU's integrated speed is believed this long into a slip (then it
+    #                           drifts: a pitch 1 deg off is 0.17 m/s^2, and a pushing vehicle squats)
+    rest_speed: float = 0.05  # [m/s]
+
+
+class WheelSlip:
+    def __init__(self, p: SlipParams = SlipParams()) -> None:
+        self.p = p
+        self.speeds: Deque[Tuple[float, float]] = deque()  # (t, wheel speed)
+        self.imu: Deque[Tuple[float, float, float, float]] = deque()  # (t, f_x, w_y, pitch)
+        self.fixes: Deque[Tuple[float, float, float, float]] = deque()  # (t, e, n, variance)
+        self.since: Optional[float] = None  # the slip's start, None without one
+        self.body_speed = 0.0  # [m/s] integrated from the IMU since the slip began
+        self.body_t: Optional[float] = None
+        self.pitch0 = 0.0
+        self.matched_since: Optional[float] = None
+        self.ended = -math.inf  # when the last slip ended (the GPS test looks at later fixes only)
+        self.reason = ""
+        self.events: List[str] = []
+        self.slips = 0
+
+    # ------------------------------------------------------------------ input
+    def add_speed(self, t: float, v: float) -> None:
+        if self.speeds and t <= self.speeds[-1][0]:
+            return
+        self.speeds.append((t, v))
+        self._trim(t)
+
+    def add_imu(self, t: float, fx: float, wy: float, pitch: float) -> None:
+        """Forward specific force [m/s^2] and pitch rate [rad/s] in the body frame (REP-103),
+        and the levelled pitch [rad] (only to start the filter)."""
+        if self.imu and t <= self.imu[-1][0]:
+            return
+        if self.imu:
+            dt = t - self.imu[-1][0]
+            acc = self._wheel_accel(t)
+            measured = math.asin(max(-1.0, min(1.0, (acc - fx) / G)))
+            k = min(1.0, dt / self.p.pitch_tau)
+            pitch = self.imu[-1][3] + wy * dt
+            pitch += k * (measured - pitch)
+        self.imu.append((t, fx, wy, pitch))
+        if self.since is not None:
+            if self.body_t is not None:
+                dt = t - self.body_t
+                self.pitch0 += wy * dt
+                self.body_speed += (fx + G * math.sin(self.pitch0)) * dt
+            self.body_t = t
+
+    def add_fix(self, t: float, e: float, n: float, variance: float) -> None:
+        if self.fixes and t <= self.fixes[-1][0]:
+            return
+        self.fixes.append((t, e, n, variance))
+
+    def _trim(self, t: float) -> None:
+        keep = max(self.p.window, self.p.gps_window) + 1.0
+        for q in (self.speeds, self.imu, self.fixes):
+            while q and q[0][0] < t - keep:
+                q.popleft()
+
+    # ----------------------------------------------------------------- tests
+    def _speed_at(self, t: float) -> Optional[float]:
+        best = None
+        for ts, v in self.speeds:
+            if ts > t + 1e-9:
+                break
+            best = v
+        return best
+
+    def _imu_test(self, t: float) -> Optional[str]:
+        p = self.p
+        t0 = t - p.window
+        v0, v1 = self._speed_at(t0), self._speed_at(t)
+        samples = [s for s in self.imu if t0 < s[0] <= t]
+        if v0 is None or v1 is None or len(samples) < 3 or self.imu[0][0] > t0:
+            return None
+        dv_i, _ = self._integrate(t0, t)
+        dv_w = v1 - v0
+        sign = 1.0 if v1 + v0 >= 0.0 else -1.0
+        if sign * (dv_w - dv_i) > max(p.threshold, p.fraction * abs(dv_w)):
+            return (f"the wheel speed changed by {dv_w:+.2f} m/s in {p.window:g} s, the IMU says the body by "
+                    f"{dv_i:+.2f} m/s")
+        return None
+
+    def _wheel_accel(self, t: float) -> float:
+        """The wheel speed's slope over its last two samples at or before ``t`` (0 in a slip:
+        then it is not the body's)."""
+        if self.since is not None or len(self.speeds) < 2:
+            return 0.0
+        (ta, va), (tb, vb) = self.speeds[-2], self.speeds[-1]
+        return (vb - va) / (tb - ta) if tb > ta and t - tb < 0.25 else 0.0
+
+    def _integrate(self, t0: float, t1: float) -> Tuple[float, float]:
+        """The body's speed change over ``(t0, t1]`` from the IMU with the filter's pitch,
+        and the pitch at ``t1``: through the window the gyro's rate alone (the filter's
+        correction uses the wheel, which is under test)."""
+        before = [s for s in self.imu if s[0] <= t0]
+        pitch = before[-1][3] if before else (self.imu[0][3] if self.imu else 0.0)
+        dv, prev = 0.0, t0
+        for ts, fx, wy, _ in self.imu:
+            if ts <= t0 or ts > t1:
+                continue
+            dt = ts - prev
+            pitch += wy * dt
+            dv += (fx + G * math.sin(pitch)) * dt
+            prev = ts
+        return dv, pitch
+
+    def gps_speed(self, t: float) -> Optional[Tuple[float, float, float]]:
+        """(speed, its sd, mean wheel speed) over the GPS window, when the fixes there are
+        many enough and mutually consistent; else None."""
+        p = self.p
+        fx = [f for f in self.fixes if t - p.gps_window <= f[0] <= t]
+        if len(fx) < p.gps_min_fixes:
+            return None
+        a = np.array(fx)
+        tt = a[:, 0] - a[:, 0].mean()
+        if float(np.ptp(tt)) < 0.5 * p.gps_window:
+            return None
+        w = 1.0 / a[:, 3]
+        A = np.column_stack([np.ones_like(tt), tt])
+        AtW = A.T * w
+        N = AtW @ A
+        try:
+            Ninv = np.linalg.inv(N)
+        except np.linalg.LinAlgError:
+            return None
+        chi2, vel = 0.0, []
+        for col in (1, 2):
+            coef = Ninv @ (AtW @ a[:, col])
+            r = a[:, col] - A @ coef
+            chi2 += float(np.sum(w * r * r))
+            vel.append(coef[1])
+        if chi2 / (2 * len(a) - 4) > p.consistency:
+            return None  # not one steady stream (a jump, a burst inside)
+        sd = math.sqrt(Ninv[1, 1])
+        ws = [v for ts, v in self.speeds if fx[0][0] <= ts <= t]
+        if not ws:
+            return None
+        return math.hypot(*vel), sd, float(np.mean(np.abs(ws)))
+
+    def _gps_test(self, t: float) -> Optional[str]:
+        if t - self.p.gps_window < self.ended:
+            return None  # the window still holds the last slip's wheel speeds
+        got = self.gps_speed(t)
+        if got is None:
+            return None
+        v_g, sd, v_w = got
+        if v_w - v_g > max(self.p.threshold, self.p.gps_sigmas * sd):
+            return (f"the wheels say {v_w:.2f} m/s, {len(self.fixes)} consistent GPS fixes of the last "
+                    f"{self.p.gps_window:g} s say {v_g:.2f} m/s")
+        return None
+
+    # ------------------------------------------------------------------ state
+    def update(self, t: float) -> bool:
+        """Whether the wheels slip at ``t`` (the events to log in :attr:`events`)."""
+        p = self.p
+        self._trim(t)
+        v = self._speed_at(t)
+        if self.since is None:
+            if v is None or abs(v) < p.rest_speed:
+                return False  # a wheel at rest claims no motion (a locked wheel is wheel_lock's)
+            why = self._imu_test(t) or self._gps_test(t)
+            if why is None:
+                return False
+            self.since, self.reason = t, why
+            self.slips += 1
+            before = self._speed_at(t - p.window)
+            # the body's speed since the window's start (the slip is seen at its end)
+            dv, self.pitch0 = self._integrate(t - p.window, t)
+            self.body_speed = (before if before is not None else 0.0) + dv
+            self.body_t = t
+            self.matched_since = None
+            self.events.append(f"wheels slip at {t:.2f} s: {why}; odometry ignored while it lasts")
+            return True
+        # in a slip: does the wheel tell the truth again?
+        ended = ""
+        if v is not None and abs(v) < p.rest_speed:
+            ended = "the wheel reads rest"
+        else:
+            got = self.gps_speed(t)
+            if got is not None and abs(got[2] - got[0]) <= max(p.threshold, p.gps_sigmas * got[1]) and \
+                    t - self.since >= p.gps_window:
+                ended = f"the fixes move at the wheels' {got[2]:.2f} m/s"
+            elif v is not None and t - self.since <= p.imu_horizon and abs(v - self.body_speed) < p.threshold:
+                if self.matched_since is None:
+                    self.matched_since = t
+                if t - self.matched_since >= p.recover_time:
+                    ended = "the body's speed from the IMU meets the wheel's"
+            else:
+                self.matched_since = None
+        if ended:
+            self.events.append(f"wheel slip over at {t:.2f} s after {t - self.since:.1f} s: {ended}")
+            self.since, self.ended = None, t
+            return False
+        return True
+
+    def pop_events(self) -> List[str]:
+        ev, self.events = self.events, []
+        return ev
