@@ -9,9 +9,19 @@ a scenario's ``planner:`` section overrides), and:
   or procedural ground, add its slope cost and treat slopes steeper than the roll-over
   monitor's warning limit as obstacles.
 
+* ``~check_rate`` (Hz, 2; 0: never), ``~check_horizon`` (m, 25), ``~retry`` (s, 2): how
+  often the remaining path is checked against ``local_obstacles``, how far ahead, and how
+  often a blocked vehicle tries again.
+
 Subscribes: ``map`` (nav_msgs/OccupancyGrid), ``move_base_simple/goal``
 (geometry_msgs/PoseStamped, rviz's 2D Nav Goal; a new goal replans at once, cancelling a
-plan under way), ``localization/odom`` (nav_msgs/Odometry, the start).
+plan under way), ``localization/odom`` (nav_msgs/Odometry, the start),
+``localization/predicted`` (nav_msgs/Odometry, where a replan starts), ``local_obstacles``
+(nav_msgs/OccupancyGrid, the local obstacle layer: when the remaining path's footprint
+touches a marked cell, the planner replans from the predicted pose on the map with the
+layer's marks added; with no path it reports BLOCKED, keeps the old path (the obstacle
+guard holds the vehicle) and retries every ``~retry`` s; a goal covered by marks is BLOCKED
+too).
 Publishes: ``planner/path`` (nav_msgs/Path, latched: each pose's orientation is the
 vehicle's heading, so a step pointing against it is driven in reverse), ``planner/status``
 (quadrivio_navigation/PlannerStatus, latched: IDLE with what it waits for, PLANNING,
@@ -41,7 +51,7 @@ from quadrivio_description.config import ConfigError, param
 from quadrivio_description.ros import lockstep
 from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_description.ros.timer import input_guard, publish
+from quadrivio_description.ros.timer import guarded_timer, input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, load_map
 from ..msg import PlannerStatus
@@ -55,6 +65,15 @@ class NodeParams:
     map_file: str = param("", doc="plan on this map_server map instead of the map topic")
     frame_id: str = param("map", doc="planning frame")
     terrain_from_scenario: bool = param(True, doc="slope cost from the scenario's simulated terrain")
+    check_rate: float = param(2.0, lo=0.0, hi=50.0, unit="Hz",
+                              doc="how often the remaining path is checked against local_obstacles (0: never)")
+    check_horizon: float = param(25.0, lo=1.0, hi=1000.0, unit="m", doc="how far along the path it is checked")
+    retry: float = param(2.0, lo=0.1, hi=600.0, unit="s", doc="a blocked vehicle's planner tries again this often")
+    held_replan: float = param(8.0, lo=0.5, hi=600.0, unit="s",
+                               doc="replan from where the vehicle stands when the obstacle guard has held it this "
+                                   "long on a path that is not blocked (an obstacle beside a tight turn)")
+    known_tolerance: float = param(0.5, lo=0.0, hi=5.0, unit="m",
+                                   doc="local marks this close to the map's obstacles are those obstacles")
 
 
 def grid_from_msg(m: OccupancyGrid) -> Grid:
@@ -96,6 +115,23 @@ class PlannerNode:
         rospy.Subscriber("move_base_simple/goal", PoseStamped, self._on_goal, queue_size=5)
         self.guard = input_guard()
         rospy.Subscriber("localization/odom", Odometry, self._on_odom, queue_size=1)
+        self.local: Optional[Grid] = None  # the local obstacle layer's newest grid
+        self.current: Optional[Tuple[float, float, float]] = None  # predicted pose (map)
+        self.speed = 0.0  # [m/s] predicted
+        self.known: Optional[np.ndarray] = None  # distance [m] of each static cell to the map's obstacles
+        self.held_since: Optional[float] = None  # the obstacle guard holds the vehicle since
+        self.path_poses: Optional[np.ndarray] = None  # the published path
+        self.static_grid: Optional[Grid] = None
+        self.blocked_since: Optional[float] = None
+        self.last_try = -math.inf
+        self.replans = 0
+        if self.np.check_rate > 0.0:
+            rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
+            rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
+            from ..msg import GuardStatus
+
+            rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
+            guarded_timer(1.0 / self.np.check_rate, self._check, "path check")
         rospy.Service("~plan", PlanPath, self._on_plan_service)
         self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
         self.worker.start()
@@ -141,6 +177,45 @@ class PlannerNode:
         if self.status.state == PlannerStatus.IDLE and self.goal is not None and self.planner is not None:
             self.jobs.put(("goal", self.goal))
 
+    def _on_local(self, m: OccupancyGrid) -> None:
+        try:
+            self.local = grid_from_msg(m)
+        except MapError as exc:
+            self.guard.reject("local_obstacles", "malformed grid", str(exc))
+
+    def _on_predicted(self, m: Odometry) -> None:
+        p, q = m.pose.pose.position, m.pose.pose.orientation
+        if self.guard.check("localization/predicted", m.header.stamp.to_sec(), rospy.get_time(), p.x, p.y, q.z, q.w):
+            self.current = (p.x, p.y, yaw_of(q))
+            self.speed = m.twist.twist.linear.x if math.isfinite(m.twist.twist.linear.x) else 0.0
+
+    def _on_guard(self, m) -> None:
+        held = m.action in (m.STOP, m.HOLD) or (m.speed_limit < 0.05 and abs(m.requested_speed) > 0.1)
+        if not held:
+            self.held_since = None
+        elif self.held_since is None:
+            self.held_since = m.header.stamp.to_sec()
+
+    def _check(self, _event) -> None:
+        """Is the remaining path (or the goal) blocked by the local layer? Then replan."""
+        st = self.status.state
+        if self.local is None or self.current is None or self.goal is None or self.planner is None:
+            return
+        if st == PlannerStatus.BLOCKED:
+            if rospy.get_time() - self.last_try >= self.np.retry:
+                self.jobs.put(("replan", self.status.reason))
+            return
+        if st != PlannerStatus.FOUND or self.path_poses is None:
+            return
+        why = blocked_reason(self.path_poses, self.current, self.local, self.planner.footprint,
+                             self.np.check_horizon, self.static_grid, self.known, self.np.known_tolerance)
+        now = rospy.get_time()
+        if not why and self.held_since is not None and now - self.held_since >= self.np.held_replan and \
+                now - self.last_try >= self.np.retry:
+            why = f"the obstacle guard has held the vehicle for {now - self.held_since:.0f} s"
+        if why:
+            self.jobs.put(("replan", why))
+
     def _on_goal(self, m: PoseStamped) -> None:
         self.cancel.set()  # a plan under way is for an old goal
         self.jobs.put(("goal", m))
@@ -157,6 +232,9 @@ class PlannerNode:
                     self._build(item)
                     if self.goal is not None:
                         self._plan_goal(self.goal)
+                elif kind == "replan":
+                    if self.jobs.empty():  # a newer goal or map first
+                        self._replan(item)
                 else:
                     # only the newest goal matters
                     while True:
@@ -175,7 +253,74 @@ class PlannerNode:
                 rospy.logerr("planner: %s failed: %r", kind, exc)
                 self._set_status(PlannerStatus.FAILED, f"internal error: {exc!r}")
 
+    def _replan(self, why: str) -> None:
+        """Plan from the predicted pose on the map with the local layer's marks added."""
+        if self.goal is None or self.current is None or self.static_grid is None or self.local is None:
+            return
+        self.last_try = rospy.get_time()
+        goal, problem = self._goal_pose(self.goal)
+        if problem:
+            return
+        merged = merge_local(self.static_grid, self.local)
+        t = time.monotonic()
+        planner = Planner(merged, self.vehicle, self.p, self.heights, self.rollover)
+        occupied = planner.check_pose(goal, "goal")
+        # A moving vehicle drives on while the planner works: plan from where it will be on
+        # its current path by then (short of the blockage), and keep the path up to there
+        prefix, start = self._replan_start(planner)
+        start_msg = pose_stamped(*start, self.np.frame_id, rospy.Time.now())
+        if occupied:
+            return self._blocked(f"{why}; and the goal is blocked: {occupied}", start_msg)
+        rospy.logwarn("planner: %s: replanning from (%.2f, %.2f)", why, start[0], start[1])
+        self._set_status(PlannerStatus.PLANNING, why, start=start_msg, goal=self.goal)
+        r = planner.plan(start, goal, cancelled=self.cancel.is_set)
+        if self.cancel.is_set():
+            return
+        if not r.ok:
+            return self._blocked(f"{why}; no other path: {r.reason}", start_msg, r)
+        self.replans += 1
+        self.blocked_since = None
+        self.held_since = None
+        poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
+        self._publish_path(path_msg(poses, self.np.frame_id, rospy.Time.now()))
+        self.path_poses = poses
+        self._set_status(PlannerStatus.FOUND, f"replanned ({why})", start_msg, self.goal, r)
+        rospy.loginfo("planner: replanned around the obstacle in %.2f s: %.1f m, %d cusp(s)",
+                      time.monotonic() - t, r.length, r.cusps)
+
+    def _replan_start(self, planner: Planner):
+        """(poses of the current path kept, the replan's start): standing (or no path), the
+        vehicle's pose; moving, the pose of its current path ``speed x (budget + 0.5 s)``
+        ahead, but short of the first pose that collides on the merged map."""
+        v = abs(self.speed)
+        poses = self.path_poses
+        if v < 0.2 or poses is None or len(poses) < 2:
+            return np.zeros((0, 3)), self.current
+        i0 = int(np.argmin(np.hypot(poses[:, 0] - self.current[0], poses[:, 1] - self.current[1])))
+        seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        ahead = v * (self.p.budget + 0.5)
+        j = int(np.searchsorted(s, s[i0] + ahead))
+        j = min(j, len(poses) - 1)
+        hits = planner.path_collides(poses[i0:j + 1])
+        if hits:
+            j = i0 + max(0, hits[0] - int(round(2.0 / max(s[1] - s[0], 0.05))))  # 2 m short of it
+        if j <= i0 + 1:
+            return np.zeros((0, 3)), self.current
+        return poses[i0:j], tuple(float(a) for a in poses[j])
+
+    def _blocked(self, reason: str, start: PoseStamped, r: Optional[PlanResult] = None) -> None:
+        if self.blocked_since is None:
+            self.blocked_since = rospy.get_time()
+            rospy.logwarn("planner: BLOCKED: %s (retrying every %.1f s; the vehicle stays stopped)", reason,
+                          self.np.retry)
+        self._set_status(PlannerStatus.BLOCKED, reason, start, self.goal, r)
+
     def _build(self, grid: Grid) -> None:
+        self.static_grid = grid
+        from scipy.ndimage import distance_transform_edt
+
+        self.known = distance_transform_edt(grid.data < 65) * grid.resolution
         t = time.monotonic()
         self._set_status(PlannerStatus.IDLE, "preparing the map")
         with self.lock:
@@ -220,6 +365,8 @@ class PlannerNode:
         if not r.ok:
             return self._fail(r.reason, m, start_msg, r)
         self._publish_path(path_msg(r.poses, self.np.frame_id, rospy.Time.now()))
+        self.path_poses = r.poses
+        self.blocked_since = None
         self._set_status(PlannerStatus.FOUND, "", start_msg, m, r)
         rospy.loginfo("planner: %s path of %.1f m, %d cusp(s), cost %.1f; first solution in %.0f ms, %.2f s in all",
                       r.planner, r.length, r.cusps, r.cost, 1e3 * r.time_to_first, r.planning_time)
@@ -282,6 +429,68 @@ class PlannerNode:
             out.cost, out.length = r.cost, r.length
             out.time_to_first, out.planning_time = r.time_to_first, r.planning_time
         return out
+
+
+def new_marks(local: Grid, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
+              tolerance: float = 0.5) -> np.ndarray:
+    """Map coordinates of the local grid's marked cells that the static map does not hold
+    already (``known``: each static cell's distance to the map's obstacles; a mark within
+    ``tolerance`` of one is that obstacle, seen): the planner planned around those."""
+    rows, cols = np.nonzero(local.data >= 100)
+    if len(rows) == 0:
+        return np.zeros((0, 2))
+    px, py, _ = local.to_map_frame((cols + 0.5) * local.resolution, (rows + 0.5) * local.resolution)
+    pts = np.column_stack([np.asarray(px, float), np.asarray(py, float)])
+    if static is None or known is None:
+        return pts
+    gx, gy, _ = static.to_grid_frame(pts[:, 0], pts[:, 1])
+    col = np.floor(np.asarray(gx) / static.resolution).astype(int)
+    row = np.floor(np.asarray(gy) / static.resolution).astype(int)
+    h, w = known.shape
+    inside = (row >= 0) & (col >= 0) & (row < h) & (col < w)
+    keep = np.ones(len(pts), dtype=bool)
+    keep[inside] = known[row[inside], col[inside]] > tolerance
+    return pts[keep]
+
+
+def blocked_reason(poses: np.ndarray, current: Tuple[float, float, float], local: Grid, footprint,
+                   horizon: float, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
+                   tolerance: float = 0.5) -> str:
+    """Why the path from the pose nearest ``current`` on, for ``horizon`` metres, is blocked
+    by the local grid's marks that the static map does not hold (footprint at each pose), or ''."""
+    from ..fields import inside
+
+    if len(poses) < 2:
+        return ""
+    pts = new_marks(local, static, known, tolerance)
+    if len(pts) == 0:
+        return ""
+    i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
+    seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    ahead = np.flatnonzero((s >= s[i0]) & (s <= s[i0] + horizon))
+    reach = footprint.circumscribed_radius
+    for i in ahead[::2]:
+        x, y, th = poses[i]
+        near = pts[np.abs(pts[:, 0] - x) + np.abs(pts[:, 1] - y) < 2.0 * reach]
+        if len(near) and inside(footprint, near, x, y, th).any():
+            p = near[inside(footprint, near, x, y, th)][0]
+            return (f"the path is blocked {s[i] - s[i0]:.1f} m ahead by an obstacle the map does not hold, at "
+                    f"({p[0]:.1f}, {p[1]:.1f})")
+    return ""
+
+
+def merge_local(static: Grid, local: Grid) -> Grid:
+    """The static map with the local grid's marked cells marked occupied (100)."""
+    data = static.data.copy()
+    rows, cols = np.nonzero(local.data >= 100)
+    if len(rows):
+        px, py, _ = local.to_map_frame((cols + 0.5) * local.resolution, (rows + 0.5) * local.resolution)
+        for x, y in zip(np.atleast_1d(px), np.atleast_1d(py)):
+            if static.contains(float(x), float(y)):
+                r, c = static.cell_of(float(x), float(y))
+                data[r, c] = 100
+    return Grid(data, static.resolution, static.origin)
 
 
 def main() -> None:

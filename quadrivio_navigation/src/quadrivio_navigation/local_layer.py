@@ -1,0 +1,179 @@
+"""The local obstacle layer: laser scans marked and ray-cleared into a rolling grid.
+
+The semantics are costmap_2d's obstacle layer, whose parameters robotics teams know:
+
+* every return within ``obstacle_range`` of its scanner **marks** the cell it falls in;
+* every ray **clears** the cells it crosses up to its return (or up to
+  ``raytrace_range`` for a ray that saw nothing, +inf in REP 117), so an obstacle that
+  has moved away is cleared by the rays that now pass through where it was;
+* a mark not seen again for ``decay`` s is forgotten (0: never), so what left the
+  scanners' view does not stay forever (costmap_2d's obstacle layer has no decay; its
+  voxel-grid successors do);
+* the grid rolls with the vehicle: ``size`` metres square centred on it, its origin
+  snapped to whole cells so that marks stay put in the map frame.
+
+Cells hold the time of their last mark (NaN: never marked or cleared since). The grid
+as a nav_msgs/OccupancyGrid: 100 marked, 0 seen free, -1 unknown.
+
+**Ground returns.** A planar scanner mounted level sees the ground only where the ground
+rises into its plane ahead (a bank, the far side of a dip) or when the vehicle pitches
+into it. Where the terrain's height ``z(x, y)`` is known (a DEM: the scenario's terrain,
+a survey), a return whose height, from the scanner's 3D pose (the vehicle's roll and
+pitch, REP-103), lies within ``ground_tolerance`` of the terrain is the ground: it
+neither marks nor clears beyond itself. Without a DEM nothing is taken for the ground:
+the vehicle's pitch alone cannot tell a bank from the obstacle at the foot of a slope it
+drives down (its scan plane is parallel to that slope), and what cannot be told apart
+stops the vehicle.
+
+Pure and ROS-free: points and poses in, a grid out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Optional, Tuple
+
+import numpy as np
+
+from quadrivio_description.config import param
+
+
+@dataclass(frozen=True)
+class LocalLayerParams:
+    size: float = param(24.0, lo=2.0, hi=500.0, unit="m", doc="side of the rolling square grid")
+    resolution: float = param(0.1, lo=0.02, hi=2.0, unit="m", doc="cell size")
+    obstacle_range: float = param(10.0, lo=0.1, hi=100.0, unit="m", doc="returns further away mark nothing")
+    raytrace_range: float = param(12.0, lo=0.1, hi=100.0, unit="m", doc="rays clear up to here at most")
+    decay: float = param(5.0, lo=0.0, hi=600.0, unit="s", doc="a mark not seen again this long is forgotten (0: never)")
+    ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m",
+                                    doc="a return within this of the ground (DEM) or of where the scan plane meets "
+                                        "level ground is the ground")
+
+
+class LocalLayer:
+    def __init__(self, p: LocalLayerParams) -> None:
+        self.p = p
+        self.n = int(round(p.size / p.resolution))
+        self.stamp = np.full((self.n, self.n), np.nan)  # [s] last mark; NaN: not marked
+        self.seen = np.zeros((self.n, self.n), dtype=bool)  # seen free (cleared) at least once
+        self.origin = (0.0, 0.0)  # map coordinates of cell (0, 0)'s corner
+        self.placed = False
+        self.ground_returns = 0
+
+    # ------------------------------------------------------------- geometry
+    def recentre(self, x: float, y: float) -> None:
+        """Roll the grid so that (x, y) is at its centre (whole cells: marks stay put)."""
+        r = self.p.resolution
+        ox = math.floor((x - 0.5 * self.p.size) / r) * r
+        oy = math.floor((y - 0.5 * self.p.size) / r) * r
+        if not self.placed:
+            self.origin, self.placed = (ox, oy), True
+            return
+        dx = int(round((ox - self.origin[0]) / r))
+        dy = int(round((oy - self.origin[1]) / r))
+        if dx == 0 and dy == 0:
+            return
+        self.stamp = _shift(self.stamp, dx, dy, np.nan)
+        self.seen = _shift(self.seen, dx, dy, False)
+        self.origin = (self.origin[0] + dx * r, self.origin[1] + dy * r)
+
+    def cells(self, xy: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows, columns and an inside mask of map points (N x 2)."""
+        r = self.p.resolution
+        col = np.floor((xy[:, 0] - self.origin[0]) / r).astype(int)
+        row = np.floor((xy[:, 1] - self.origin[1]) / r).astype(int)
+        ok = (row >= 0) & (col >= 0) & (row < self.n) & (col < self.n)
+        return row, col, ok
+
+    # --------------------------------------------------------------- update
+    def add_scan(self, t: float, sensor: Tuple[float, float, float], bearings: np.ndarray, ranges: np.ndarray,
+                 ground: Optional[Callable[[np.ndarray, np.ndarray], np.ndarray]] = None) -> None:
+        """One scan: the scanner at ``sensor`` = (x, y, heading) in the map [m, m, rad];
+        ``bearings`` [rad] of its rays in its own frame and their ``ranges`` [m] (+inf:
+        nothing; NaN: invalid, ignored; -inf: too close, at 0); ``ground(bearings, ranges)``
+        (with a DEM, see :func:`dem_ground`) tells which returns are the ground."""
+        p = self.p
+        self.recentre(sensor[0], sensor[1])
+        a = np.asarray(bearings, dtype=float)
+        rr = np.asarray(ranges, dtype=float)
+        valid = ~np.isnan(rr)
+        a, rr = a[valid], rr[valid]
+        nothing = np.isposinf(rr)
+        rr = np.where(np.isneginf(rr), 0.0, rr)
+        hit = ~nothing & (rr <= p.obstacle_range)
+        world = a + sensor[2]
+        ca, sa = np.cos(world), np.sin(world)
+        end = np.where(nothing, p.raytrace_range, np.minimum(rr, p.raytrace_range))
+        ex, ey = sensor[0] + end * ca, sensor[1] + end * sa
+        if ground is not None and np.any(hit):
+            g = np.zeros_like(hit)
+            g[hit] = ground(a[hit], rr[hit])
+            self.ground_returns += int(np.count_nonzero(g))
+            hit &= ~g
+        # clear along every ray, stopping one cell short of a return
+        r = p.resolution
+        steps = np.maximum(0, np.floor((end - (~nothing) * r) / (0.5 * r)).astype(int))
+        total = int(steps.sum())
+        if total:
+            ray = np.repeat(np.arange(len(end)), steps)
+            first = np.cumsum(steps) - steps
+            k = np.arange(total) - np.repeat(first, steps)
+            d = (k + 0.5) * 0.5 * r
+            px = sensor[0] + d * ca[ray]
+            py = sensor[1] + d * sa[ray]
+            row, col, ok = self.cells(np.column_stack([px, py]))
+            row, col = row[ok], col[ok]
+            self.stamp[row, col] = np.nan
+            self.seen[row, col] = True
+        if np.any(hit):
+            row, col, ok = self.cells(np.column_stack([ex[hit], ey[hit]]))
+            self.stamp[row[ok], col[ok]] = t
+        if p.decay > 0.0:
+            old = self.stamp < t - p.decay
+            self.stamp[old] = np.nan
+
+    def occupied(self) -> np.ndarray:
+        """Boolean grid of marked cells (row = y, column = x)."""
+        return ~np.isnan(self.stamp)
+
+    def grid_values(self) -> np.ndarray:
+        """int8 grid as nav_msgs/OccupancyGrid: 100 marked, 0 seen free, -1 unknown."""
+        out = np.full((self.n, self.n), -1, dtype=np.int8)
+        out[self.seen] = 0
+        out[self.occupied()] = 100
+        return out
+
+    def marked_points(self) -> np.ndarray:
+        """Map coordinates (N x 2) of the marked cells' centres."""
+        rows, cols = np.nonzero(self.occupied())
+        r = self.p.resolution
+        return np.column_stack([self.origin[0] + (cols + 0.5) * r, self.origin[1] + (rows + 0.5) * r])
+
+
+def _shift(a: np.ndarray, dx: int, dy: int, fill) -> np.ndarray:
+    """``a`` moved by (-dy, -dx) cells (the grid's origin moved by (dx, dy)), new cells ``fill``."""
+    out = np.full_like(a, fill)
+    n_r, n_c = a.shape
+    if abs(dx) >= n_c or abs(dy) >= n_r:
+        return out
+    src_r = slice(max(dy, 0), n_r + min(dy, 0))
+    dst_r = slice(max(-dy, 0), n_r + min(-dy, 0))
+    src_c = slice(max(dx, 0), n_c + min(dx, 0))
+    dst_c = slice(max(-dx, 0), n_c + min(-dx, 0))
+    out[dst_r, dst_c] = a[src_r, src_c]
+    return out
+
+
+def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position, rotation: np.ndarray,
+               tolerance: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """A ``ground(bearings, ranges)`` test for :meth:`LocalLayer.add_scan` from a DEM
+    ``heights(x, y)`` [m] and the scanner's 3D pose in the map (``position`` (3,),
+    ``rotation`` 3 x 3): a return within ``tolerance`` [m] of the terrain is the ground."""
+    pos = np.asarray(position, dtype=float)
+
+    def ground(bearings: np.ndarray, ranges: np.ndarray) -> np.ndarray:
+        d = np.stack([np.cos(bearings), np.sin(bearings), np.zeros_like(bearings)])
+        pts = pos[:, None] + rotation @ d * ranges
+        return np.abs(pts[2] - heights(pts[0], pts[1])) <= tolerance
+    return ground

@@ -1,0 +1,230 @@
+"""Local obstacle layer node: the lasers marked and ray-cleared into a rolling grid around
+the vehicle (:mod:`quadrivio_navigation.local_layer`, costmap_2d's obstacle-layer semantics),
+for the planner to check its path against and plan around.
+
+Parameters (private, ``config/local_layer.yaml``; a scenario's ``local_layer:`` section
+overrides): :class:`quadrivio_navigation.local_layer.LocalLayerParams`, ``~scanners`` (the
+guard's list: topic and frame), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
+``~base_frame`` (base_link), ``~terrain_from_scenario`` (bool, true: with a scenario whose
+terrain is known, returns on it are the ground, not obstacles).
+
+Subscribes: the scanners' topics (sensor_msgs/LaserScan), ``localization/predicted``
+(nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu: roll and pitch,
+with a DEM only), ``/tf_static`` (the scanners' mounts).
+Publishes: ``local_obstacles`` (nav_msgs/OccupancyGrid at ``~publish_rate``: 100 marked, 0
+seen free, -1 unknown), ``/diagnostics`` (update time, ground returns, rejects).
+
+A scan is dropped and counted, never fatal, when its frame_id is not its scanner's, its
+geometry is inconsistent, its stamp is from the future, or no pose or mount is known.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Tuple
+
+import numpy as np
+import rospy
+from diagnostic_msgs.msg import DiagnosticStatus
+from nav_msgs.msg import OccupancyGrid, Odometry
+from sensor_msgs.msg import Imu, LaserScan
+
+from quadrivio_description.config import ConfigError, param
+from quadrivio_description.frames import matrix_from_quaternion, rpy_matrix, tilt_from_gravity, yaw_from_quaternion
+from quadrivio_description.ros import diagnostics, lockstep
+from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, split_params, \
+    vehicle_params, with_scenario
+from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+
+from ..fields import ScanError, check_scan
+from ..guard import ScannerParams
+from ..local_layer import LocalLayer, LocalLayerParams, dem_ground
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    scanners: Tuple[ScannerParams, ...] = param(
+        (ScannerParams("scan/front", "laser_front", "forward"), ScannerParams("scan/rear", "laser_rear", "reverse")))
+    publish_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="local_obstacles rate")
+    frame_id: str = param("map")
+    base_frame: str = param("base_link")
+    terrain_from_scenario: bool = param(True, doc="returns on the scenario's known terrain are the ground")
+    max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="a scan with no pose this fresh is dropped")
+
+
+class LocalLayerNode:
+    def __init__(self) -> None:
+        mine, rest = split_params(private_params(), NodeParams)
+        self.np: NodeParams = node_params(NodeParams, mine)
+        self.p: LocalLayerParams = with_scenario(node_params(LocalLayerParams, rest), "local_layer")
+        self.vehicle = vehicle_params()
+        self.layer = LocalLayer(self.p)
+        self.lock = threading.Lock()
+        self.inputs = input_guard()
+        self.pose = None  # (stamp, x, y, yaw)
+        self.tilt = (0.0, 0.0)  # roll, pitch from the accelerometer (low-passed)
+        self.static = {}
+        self.mounts = {}
+        self.update_ms = []  # recent update times [ms]
+        self.heights, self.ground_z0 = self._terrain()
+        self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
+        from tf2_msgs.msg import TFMessage
+
+        rospy.Subscriber("/tf_static", TFMessage, self._on_tf_static, queue_size=10)
+        rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
+        if self.heights is not None:
+            rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
+        for s in self.np.scanners:
+            rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
+        self.pub = rospy.Publisher("local_obstacles", OccupancyGrid, queue_size=2)
+        guarded_timer(1.0 / self.np.publish_rate, self._publish, "local obstacle grid")
+        self.diag = diagnostics.updater()
+        self.diag.setHardwareID("local obstacle layer")
+        self.diag.add("local obstacle layer", self._diagnose)
+        guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
+        on_clock_jump(self._on_clock_jump)
+
+    def _terrain(self):
+        key = "/scenario/sim/terrain"
+        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
+            return None, 0.0
+        from quadrivio_description.config import replace_nested
+        from quadrivio_description.terrain import TerrainParams, build_heightfield
+
+        try:
+            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
+            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
+        except ConfigError as exc:
+            fatal(f"bad scenario terrain: {exc}")
+        if hf is None:
+            return None, 0.0
+        rospy.loginfo("local obstacle layer: returns on the scenario's %s terrain are the ground", tp.kind)
+        return hf.heights, 0.0
+
+    def _on_clock_jump(self, _before: float, _now: float) -> None:
+        with self.lock:
+            self.layer = LocalLayer(self.p)
+            self.pose = None
+
+    def _on_tf_static(self, m) -> None:
+        for t in m.transforms:
+            self.static[t.child_frame_id] = t
+        self.mounts = {}
+
+    def _mount(self, frame: str):
+        """The frame's (translation, rotation) in base_link through /tf_static; None if unknown."""
+        if frame in self.mounts:
+            return self.mounts[frame]
+        R, t, f = np.eye(3), np.zeros(3), frame
+        for _ in range(32):
+            if f == self.np.base_frame:
+                self.mounts[frame] = (t, R)
+                return t, R
+            tr = self.static.get(f)
+            if tr is None:
+                return None
+            q, p = tr.transform.rotation, tr.transform.translation
+            Rp = np.array(matrix_from_quaternion(q.x, q.y, q.z, q.w))
+            R, t = Rp @ R, Rp @ t + np.array([p.x, p.y, p.z])
+            f = tr.header.frame_id
+        return None
+
+    def _on_pose(self, m: Odometry) -> None:
+        p, q = m.pose.pose.position, m.pose.pose.orientation
+        if not self.inputs.check("localization/predicted", m.header.stamp.to_sec(), rospy.get_time(), p.x, p.y,
+                                 q.z, q.w):
+            return
+        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+
+    def _on_imu(self, m: Imu) -> None:
+        a = m.linear_acceleration
+        if not self.inputs.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z):
+            return
+        R = rpy_matrix(self.imu_mount)
+        f = [sum(R[i][j] * v for j, v in enumerate((a.x, a.y, a.z))) for i in range(3)]
+        r, p = tilt_from_gravity(f)
+        k = 0.05  # low-pass (100 Hz: ~0.2 s)
+        self.tilt = (self.tilt[0] + k * (r - self.tilt[0]), self.tilt[1] + k * (p - self.tilt[1]))
+
+    def _on_scan(self, m: LaserScan, s) -> None:
+        check_clock()
+        now = rospy.get_time()
+        stamp = m.header.stamp.to_sec()
+        if m.header.frame_id.lstrip("/") != s.frame:
+            self.inputs.reject(s.topic, "wrong frame_id", f"'{m.header.frame_id}', expected '{s.frame}'")
+            return
+        if not self.inputs.stamp(s.topic, stamp, now):
+            return
+        try:
+            check_scan(len(m.ranges), m.angle_min, m.angle_max, m.angle_increment, m.range_min, m.range_max)
+        except ScanError as exc:
+            self.inputs.reject(s.topic, "malformed scan", str(exc))
+            return
+        pose, mount = self.pose, self._mount(s.frame)
+        if pose is None or now - pose[0] > self.np.max_pose_age:
+            self.inputs.reject(s.topic, "no fresh pose", "localization/predicted")
+            return
+        if mount is None:
+            self.inputs.reject(s.topic, "no transform", f"{self.np.base_frame} <- {s.frame} on /tf_static")
+            return
+        t0 = time.perf_counter()
+        _, x, y, yaw = pose
+        t_b, R_b = mount
+        c, sn = math.cos(yaw), math.sin(yaw)
+        sx, sy = x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1]
+        heading = yaw + math.atan2(R_b[1, 0], R_b[0, 0])
+        n = len(m.ranges)
+        bearings = m.angle_min + m.angle_increment * np.arange(n)
+        if R_b[2, 2] < 0.0:  # mounted upside down: its angles turn the other way
+            bearings = -bearings
+        ranges = np.asarray(m.ranges, dtype=float)
+        ranges = np.where(np.isfinite(ranges) & ((ranges < m.range_min) | (ranges > m.range_max)), np.nan, ranges)
+        ground = None
+        if self.heights is not None:
+            roll, pitch = self.tilt
+            R_map = np.array(rpy_matrix((roll, pitch, yaw)))
+            z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
+            pos = np.array([x, y, z0]) + R_map @ t_b
+            ground = dem_ground(self.heights, pos, R_map @ R_b, self.p.ground_tolerance)
+        with self.lock:
+            self.layer.add_scan(stamp, (sx, sy, heading), bearings, ranges, ground)
+        self.update_ms.append(1e3 * (time.perf_counter() - t0))
+        del self.update_ms[:-200]
+
+    def _publish(self, _event) -> None:
+        with self.lock:
+            if not self.layer.placed:
+                return
+            values = self.layer.grid_values()
+            origin = self.layer.origin
+        m = OccupancyGrid()
+        m.header.stamp = rospy.Time.now()
+        m.header.frame_id = self.np.frame_id
+        m.info.map_load_time = m.header.stamp
+        m.info.resolution = self.p.resolution
+        m.info.width = m.info.height = self.layer.n
+        m.info.origin.position.x, m.info.origin.position.y = origin
+        m.info.origin.orientation.w = 1.0
+        m.data = values.ravel().tolist()
+        publish(self.pub, m)
+
+    def _diagnose(self, stat):
+        ms = sorted(self.update_ms)
+        stat.summary(DiagnosticStatus.OK if self.pose is not None else DiagnosticStatus.WARN,
+                     "updating" if self.pose is not None else "no pose yet")
+        if ms:
+            stat.add("update p50 / p99 [ms]", f"{ms[len(ms) // 2]:.2f} / {ms[min(len(ms) - 1, int(0.99 * len(ms)))]:.2f}")
+        stat.add("marked cells", str(int(self.layer.occupied().sum())))
+        stat.add("ground returns", str(self.layer.ground_returns))
+        stat.add("inputs rejected", self.inputs.summary())
+        return stat
+
+
+def main() -> None:
+    rospy.init_node("local_layer")
+    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    LocalLayerNode()
+    rospy.spin()

@@ -1,0 +1,114 @@
+"""The local obstacle layer's marking, clearing, decay and rolling on synthetic scans
+(quadrivio_navigation.local_layer), with costmap_2d's obstacle-layer semantics."""
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio_navigation.local_layer import LocalLayer, LocalLayerParams, dem_ground
+
+BEARINGS = np.radians(np.arange(-135.0, 135.01, 1.0))
+
+
+def value_at(layer, x, y):
+    row, col, ok = layer.cells(np.array([[x, y]]))
+    assert ok[0]
+    return int(layer.grid_values()[row[0], col[0]])
+
+
+def test_marks_returns_and_clears_the_rays_to_them():
+    layer = LocalLayer(LocalLayerParams(size=20.0, resolution=0.1, obstacle_range=6.0, raytrace_range=8.0))
+    ranges = np.full(len(BEARINGS), np.inf)
+    ahead = np.abs(BEARINGS) < np.radians(5)
+    ranges[ahead] = 5.0 / np.cos(BEARINGS[ahead])  # a wall 5 m ahead, +-0.44 m wide
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, ranges)
+    assert value_at(layer, 5.02, 0.0) == 100
+    assert value_at(layer, 2.5, 0.0) == 0  # cleared (seen free) on the way
+    assert value_at(layer, 7.0, 0.0) == -1  # behind the wall: unknown
+    assert value_at(layer, 0.0, 8.5) == -1  # beyond the raytrace range (a sideways ray saw nothing: 8 m)
+    assert value_at(layer, 0.0, 7.5) == 0
+    # beyond obstacle_range: marks nothing, still clears
+    layer2 = LocalLayer(LocalLayerParams(size=20.0, obstacle_range=4.0, raytrace_range=10.0))
+    layer2.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, ranges)
+    assert not layer2.occupied().any()
+    assert value_at(layer2, 4.5, 0.0) == 0
+
+
+def test_a_moved_obstacle_is_cleared_by_the_rays_through_it():
+    layer = LocalLayer(LocalLayerParams(size=20.0, decay=0.0))
+    r = np.full(len(BEARINGS), np.inf)
+    i = int(np.argmin(np.abs(BEARINGS)))
+    r[i] = 4.0
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
+    assert value_at(layer, 4.02, 0.0) == 100
+    layer.add_scan(2.0, (0.0, 0.0, 0.0), BEARINGS, np.full(len(BEARINGS), np.inf))  # gone
+    assert value_at(layer, 4.02, 0.0) == 0
+
+
+def test_marks_decay_when_not_seen_again():
+    layer = LocalLayer(LocalLayerParams(size=20.0, decay=2.0))
+    r = np.full(len(BEARINGS), np.inf)
+    r[int(np.argmin(np.abs(BEARINGS)))] = 4.0
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
+    narrow = np.radians([90.0])  # later scans look elsewhere (sideways only)
+    layer.add_scan(2.5, (0.0, 0.0, 0.0), narrow, np.array([np.inf]))
+    assert value_at(layer, 4.02, 0.0) == 100
+    layer.add_scan(3.5, (0.0, 0.0, 0.0), narrow, np.array([np.inf]))
+    assert value_at(layer, 4.02, 0.0) != 100
+
+
+def test_rolling_keeps_marks_in_place():
+    layer = LocalLayer(LocalLayerParams(size=10.0, resolution=0.1, decay=0.0))
+    r = np.full(len(BEARINGS), np.inf)
+    r[int(np.argmin(np.abs(BEARINGS)))] = 3.0
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
+    before = layer.marked_points()
+    layer.recentre(1.37, -0.8)  # the vehicle moved
+    after = layer.marked_points()
+    assert len(before) == len(after) == 1
+    assert after[0] == pytest.approx(before[0])
+    layer.recentre(30.0, 0.0)  # far: the mark has left the grid
+    assert not layer.occupied().any()
+
+
+def test_bad_ranges_rep117():
+    layer = LocalLayer(LocalLayerParams(size=20.0))
+    r = np.full(len(BEARINGS), np.nan)  # every reading invalid: nothing marked, nothing cleared
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
+    assert (layer.grid_values() == -1).all()
+    r[135] = -np.inf  # too close: marks the scanner's own cell
+    layer.add_scan(1.1, (0.0, 0.0, 0.0), BEARINGS, r)
+    assert value_at(layer, 0.01, 0.01) == 100
+
+
+def test_returns_on_the_dem_are_ground_not_obstacles():
+    # terrain rising ahead at 15 %; a level scanner 0.55 m up meets it at ~3.7 m
+    def heights(x, y):
+        return 0.15 * np.maximum(np.asarray(x), 0.0)
+
+    layer = LocalLayer(LocalLayerParams(size=20.0))
+    ranges = np.full(len(BEARINGS), np.inf)
+    front = np.abs(BEARINGS) < np.radians(30)
+    ranges[front] = 0.55 / 0.15 / np.cos(BEARINGS[front])
+    ground = dem_ground(heights, (0.0, 0.0, 0.55), np.eye(3), 0.15)
+    layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, ranges, ground=ground)
+    assert not layer.occupied().any()
+    assert layer.ground_returns == int(front.sum())
+    # a post standing on that slope is still an obstacle
+    ranges[135] = 2.0
+    layer.add_scan(2.0, (0.0, 0.0, 0.0), BEARINGS, ranges, ground=ground)
+    assert value_at(layer, 2.02, 0.0) == 100
+
+
+def test_update_cost_is_small():
+    import time
+    layer = LocalLayer(LocalLayerParams())
+    rng = np.random.default_rng(0)
+    ranges = rng.uniform(0.5, 30.0, len(BEARINGS))
+    ranges[rng.random(len(BEARINGS)) < 0.3] = np.inf
+    t0 = time.perf_counter()
+    for k in range(20):
+        layer.add_scan(float(k), (0.1 * k, 0.0, 0.0), BEARINGS, ranges)
+    per = (time.perf_counter() - t0) / 20
+    assert per < 0.05  # a loose bound for a loaded machine; the benchmark measures it (bench_obstacles)
+    assert math.isfinite(per)
