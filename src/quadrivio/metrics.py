@@ -48,7 +48,7 @@ class RunData:
     path: Optional[np.ndarray]  # N x 2 reference path
     status: Series  # follower/status: t, status, progress
     lever: tuple = (0.0, 0.0)  # GPS antenna in base_link (x, y)
-    setpoint: Series = field(default_factory=Series.empty)  # vehicle/setpoint/auto: t, speed, handlebar
+    setpoint: Series = field(default_factory=Series.empty)  # vehicle/setpoint/auto: t, speed, handlebar, brake
     vehicle: Series = field(default_factory=Series.empty)  # vehicle/state: t, speed, handlebar
     calibration: Series = field(default_factory=Series.empty)  # localization/calibration: t, <name>...
     goal: Optional[tuple] = None  # (x, y, yaw) the planner was asked for
@@ -56,6 +56,9 @@ class RunData:
     planner: Series = field(default_factory=Series.empty)  # planner/status: t, state, planning_time, length
     path_poses: Optional[np.ndarray] = None  # N x 3 planned poses with the vehicle's heading
     footprint: object = None  # quadrivio_navigation.costmap.Footprint (no padding) for collisions
+    guard: Series = field(default_factory=Series.empty)  # guard/status: t, action, limit, free, protective, ...
+    actors: list = field(default_factory=list)  # ground_truth/actors: [(t, [(name, kind, shape, x, y, yaw, l, w)])]
+    contacts: Optional[list] = None  # ground_truth/contacts: [(t, body, kind, speed)]; None: not recorded
 
 
 def _interp_pose(gt: Series, t: np.ndarray):
@@ -168,7 +171,9 @@ def planned_metrics(run: RunData) -> Dict[str, object]:
 
 
 def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = None,
-            wall_duration: Optional[float] = None) -> Dict[str, object]:
+            wall_duration: Optional[float] = None, vehicle=None) -> Dict[str, object]:
+    """The metrics of a run; with ``vehicle`` (VehicleParams) also the obstacle keys
+    (:mod:`quadrivio.obstacle_metrics`: contacts, clearance, the guard's stops)."""
     gt = run.ground_truth
     m: Dict[str, object] = {k: None for k in CONTRACT_KEYS}
     m["scenario"], m["seed"] = scenario, seed
@@ -208,4 +213,8 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
         lat = np.abs(gt["vx"] * gt["wz"])  # a_y = v omega for the rear axle centre
         m["max_lateral_accel_mps2"] = float(np.max(lat)) if len(lat) else None
     m.update(planned_metrics(run))
+    if vehicle is not None:
+        from .obstacle_metrics import obstacle_metrics
+
+        m.update(obstacle_metrics(run, vehicle))
     return m

@@ -32,6 +32,92 @@ def _draw_map(ax, grid) -> None:
         ax.plot(px, py, "s", color="k", ms=1, zorder=0)
 
 
+def _draw_actors(ax, run: RunData) -> None:
+    """Scenario obstacles filled, actors' tracks dotted with their outline where they ended."""
+    if not run.actors:
+        return
+    from matplotlib.patches import Polygon
+
+    from .obstacle_metrics import _outline_points
+
+    tracks: Dict[str, List] = {}
+    for _, snap in run.actors:
+        for b in snap:
+            tracks.setdefault(b[0], []).append(b)
+    labelled = set()
+    for name, bs in tracks.items():
+        last = bs[-1]
+        kind = last[1]
+        colour = {"person": "tab:red", "animal": "tab:brown", "vehicle": "tab:blue", "obstacle": "dimgray"}.get(
+            kind, "tab:gray")
+        xy = np.array([(b[3], b[4]) for b in bs])
+        if np.ptp(xy[:, 0]) + np.ptp(xy[:, 1]) > 0.05:
+            ax.plot(xy[:, 0], xy[:, 1], ":", color=colour, lw=1.0)
+        first = bs[0]
+        for b, alpha in ((first, 0.25), (last, 0.8)) if first is not last else ((last, 0.8),):
+            outline = _outline_points(b[2], b[3], b[4], b[5], b[6], b[7], spacing=0.2)
+            ax.add_patch(Polygon(outline, closed=True, fc=colour, ec=colour, alpha=alpha,
+                                 label=None if kind in labelled else kind))
+            labelled.add(kind)
+        ax.annotate(name, (last[3], last[4]), fontsize=7, xytext=(4, 4), textcoords="offset points")
+
+
+def _draw_stops(ax, run: RunData) -> None:
+    """The guard's stops (protective: a red cross, fail-safe: an orange one) and contacts."""
+    from .obstacle_metrics import stop_list
+
+    stops = stop_list(run)
+    for action, colour, label in ((2, "red", "protective stop"), (4, "darkorange", "fail-safe stop")):
+        pts = [(x, y) for _, x, y, a in stops if a == action]
+        if pts:
+            ax.plot(*zip(*pts), "X", color=colour, ms=9, mec="k", mew=0.5, label=label, zorder=5)
+    if run.contacts and len(run.ground_truth):
+        gt = run.ground_truth
+        xs = [float(np.interp(c[0], gt.t, gt["x"])) for c in run.contacts]
+        ys = [float(np.interp(c[0], gt.t, gt["y"])) for c in run.contacts]
+        ax.plot(xs, ys, "*", color="k", ms=12, label=f"contact ({len(xs)})", zorder=6)
+
+
+def guard(run: RunData, path: str, title: str) -> bool:
+    """The obstacle guard over time: speeds asked, sent and measured; free distance against
+    the protective and warning fields; its action."""
+    g = run.guard
+    if len(g) == 0:
+        return False
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    names = {0: "CLEAR", 1: "SLOW", 2: "STOP", 3: "HOLD", 4: "FAULT"}
+    colours = {1: "khaki", 2: "salmon", 3: "lightsalmon", 4: "orange"}
+    t, act = g.t, g["action"]
+    for k, c in colours.items():
+        on = act == k
+        if on.any():
+            for a in (a1, a2):
+                a.fill_between(t, 0, 1, where=on, step="post", color=c, alpha=0.5, transform=a.get_xaxis_transform(),
+                               label=names[k] if a is a1 else None)
+    a1.plot(t, np.abs(g["requested"]), color="tab:gray", lw=1, label="requested |speed|")
+    if len(run.setpoint):
+        a1.plot(run.setpoint.t, np.abs(run.setpoint["speed"]), color="tab:blue", lw=1, label="guarded |speed|")
+    if len(run.vehicle):
+        a1.plot(run.vehicle.t, np.abs(run.vehicle["speed"]), color="tab:green", lw=1, label="measured |speed|")
+    a1.set_ylabel("speed [m/s]")
+    a1.legend(loc="upper right", fontsize=7, ncol=3)
+    free = np.where(np.isfinite(g["free"]), g["free"], np.nan)
+    a2.plot(t, free, ".", ms=2, color="k", label="free distance")
+    a2.plot(t, g["protective"], color="tab:red", lw=1, label="protective field")
+    a2.set_ylabel("along the path [m]")
+    a2.set_xlabel("time [s]")
+    a2.set_ylim(0, max(8.0, float(np.nanmax(g["protective"])) * 2 if len(g) else 8.0))
+    a2.legend(loc="upper right", fontsize=7)
+    a1.set_title(title + ": obstacle guard")
+    for a in (a1, a2):
+        a.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def trajectory(run: RunData, path: str, title: str) -> None:
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
@@ -53,9 +139,11 @@ def trajectory(run: RunData, path: str, title: str) -> None:
             for i in list(range(0, len(gt), step)) + [len(gt) - 1]:
                 ax.add_patch(Polygon(run.footprint.corners(gt["x"][i], gt["y"][i], gt["yaw"][i]), closed=True,
                                      fill=False, lw=0.5, ec="tab:green", alpha=0.6))
+    _draw_actors(ax, run)
     if len(run.ground_truth):
         ax.plot(run.ground_truth["x"], run.ground_truth["y"], color="tab:green", lw=0.8, alpha=0.8,
                 label="ground truth")
+    _draw_stops(ax, run)
     if len(run.estimate):
         ax.plot(run.estimate["x"], run.estimate["y"], color="tab:blue", lw=1.5, label="localization estimate")
     if len(run.gps):
@@ -165,7 +253,8 @@ def all_plots(run: RunData, out_dir: str, title: str) -> List[str]:
     if len(run.ground_truth) or len(run.estimate) or len(run.gps) or run.path is not None or run.map is not None:
         trajectory(run, os.path.join(out_dir, "trajectory.png"), title)
         made.append("trajectory.png")  # (nothing to draw: no empty plot)
-    for name, fn in (("errors.png", errors), ("control.png", control), ("calibration.png", calibration)):
+    for name, fn in (("errors.png", errors), ("control.png", control), ("calibration.png", calibration),
+                     ("guard.png", guard)):
         if fn(run, os.path.join(out_dir, name), title):
             made.append(name)
     return made
@@ -174,7 +263,10 @@ def all_plots(run: RunData, out_dir: str, title: str) -> List[str]:
 def format_metrics(m: Dict[str, object]) -> List[str]:
     out = []
     for k, v in m.items():
-        if isinstance(v, float):
+        if isinstance(v, list):
+            shown = ", ".join(f"{x:.0f}" if isinstance(x, float) else str(x) for x in v[:5])
+            out.append(f"  {k:32s} {len(v)}: {shown}{', ...' if len(v) > 5 else ''}")
+        elif isinstance(v, float):
             out.append(f"  {k:32s} {v:.4g}" if math.isfinite(v) else f"  {k:32s} {v}")
         else:
             out.append(f"  {k:32s} {v}")

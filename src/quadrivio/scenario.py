@@ -13,6 +13,9 @@ it at start-up (``/scenario/<section>``)::
     follower:       quadrivio_navigation/config/follower.yaml
     map:            quadrivio_navigation/config/map_server.yaml (the map: published on /map, obstacles in the simulator)
     planner:        quadrivio_navigation/config/planner.yaml
+    guard:          quadrivio_navigation/config/guard.yaml (the obstacle guard: fields, scanners, operating zone)
+    local_layer:    quadrivio_navigation/config/local_layer.yaml (the local obstacle grid the planner replans on)
+    actors:         people, animals and vehicles the simulator moves (quadrivio_sim.actors)
     excitation:     quadrivio_navigation/config/excitation.yaml (open-loop steps and sweeps for
                     `calibrate` instead of navigation; run.end must be duration)
     run:            this module's RunParams (real-time factor, time limit, end)
@@ -41,7 +44,8 @@ class RunParams:
     gps_nmea: bool = param(False, doc="GPS through NMEA and the real driver")
 
 
-SECTIONS = ("vehicle", "sim", "sensors", "localization", "path", "follower", "map", "planner", "excitation", "run")
+SECTIONS = ("vehicle", "sim", "sensors", "localization", "path", "follower", "map", "planner", "guard", "local_layer",
+            "actors", "excitation", "run")
 SENSORS = ("gps", "imu", "mag", "laser_front", "laser_rear", "camera_left", "camera_right")
 
 
@@ -77,6 +81,8 @@ def _validators():
     from quadrivio_localization.smoother import LocalizerParams
     from quadrivio_navigation.excitation import ExcitationParams
     from quadrivio_navigation.follower import FollowerConfig
+    from quadrivio_navigation.guard import GuardParams
+    from quadrivio_navigation.local_layer import LocalLayerParams
     from quadrivio_navigation.maps import MapParams
     from quadrivio_navigation.paths import PathParams
     from quadrivio_navigation.planning import PlannerParams
@@ -102,6 +108,8 @@ def _validators():
     yield "follower", FollowerConfig, pkg("quadrivio_navigation", "config", "follower.yaml")
     yield "map", MapParams, pkg("quadrivio_navigation", "config", "map_server.yaml")
     yield "planner", PlannerParams, pkg("quadrivio_navigation", "config", "planner.yaml")
+    yield "guard", GuardParams, pkg("quadrivio_navigation", "config", "guard.yaml")
+    yield "local_layer", LocalLayerParams, pkg("quadrivio_navigation", "config", "local_layer.yaml")
     yield "excitation", ExcitationParams, pkg("quadrivio_navigation", "config", "excitation.yaml")
 
 
@@ -158,8 +166,26 @@ def load_scenario(name_or_path: str) -> Scenario:
             raise ConfigError(f"{path}: an excitation program has no follower to say it is done: set run.end: "
                               f"duration and run.max_duration >= {program.duration + 1.0:.1f} s (the program "
                               f"lasts {program.duration:.1f} s)")
+    from quadrivio_sim.actors import load_actors
+
+    load_actors(data.get("actors"), path)  # ConfigError naming the actor and the key
+    if checked.get("guard") is not None and checked["guard"].zone:
+        _check_zone_holds_start(data, checked["guard"].zone, path)
     _check_map(data, path)
     return Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
+
+
+def _check_zone_holds_start(data: Dict[str, Any], zone, path: str) -> None:
+    """The operating zone must contain the vehicle's start (sim.spawn)."""
+    import numpy as np
+
+    from quadrivio_navigation.guard import points_in_polygon
+
+    spawn = (data.get("sim") or {}).get("spawn") or {}
+    x, y = float(spawn.get("x", 0.0)), float(spawn.get("y", 0.0))
+    if not points_in_polygon(np.array([[x, y]]), np.asarray(zone, dtype=float))[0]:
+        raise ConfigError(f"{path}: guard.zone does not contain the start ({x:g}, {y:g}) (sim.spawn): the vehicle "
+                          "would never move")
 
 
 def map_file(s: "Scenario") -> str:

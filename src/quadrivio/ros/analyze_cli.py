@@ -43,7 +43,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
             raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
                            f"move it away to analyze the bag alone") from exc
-    m = M.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"))
+    m = M.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
     os.makedirs(out, exist_ok=True)
     tmp = os.path.join(out, ".metrics.json.tmp")
     with open(tmp, "w") as fh:

@@ -32,11 +32,15 @@ TOPICS = {
     "planner": "/planner/status",
     "goal": "/move_base_simple/goal",
     "map": "/map",
+    "guard": "/guard/status",
+    "actors": "/ground_truth/actors",
+    "contacts": "/ground_truth/contacts",
 }
 # Not /clock: a bag's messages carry their time, `rosbag play --clock` publishes it, and a
 # recorded /clock would make a second publisher of it (12 % of a run's messages).
 RECORD = sorted(set(TOPICS.values()) | {"/imu/data", "/imu/mag", "/gps/vel", "/safety/rollover", "/tf", "/tf_static",
-                                        "/diagnostics", "/rosout_agg", "/joint_states", "/scan/front", "/scan/rear"})
+                                        "/diagnostics", "/rosout_agg", "/joint_states", "/scan/front", "/scan/rear",
+                                        "/vehicle/setpoint/request"})
 CALIBRATION_FIELDS = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias")
 
 
@@ -100,6 +104,8 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
     path_poses = None
     goal = None
     grid = None
+    actors: List[tuple] = []
+    contacts = None
     by_topic = {v: k for k, v in topics.items()}
     with bag:
         try:
@@ -118,6 +124,13 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                 if kind == "map":
                     grid = _grid(m)
                     continue
+                if kind == "actors":
+                    actors.append((m.header.stamp.to_sec(), [(a.name, a.kind, a.shape, a.pose.x, a.pose.y,
+                                                              a.pose.theta, a.length, a.width) for a in m.actors]))
+                    continue
+                if kind == "contacts":
+                    contacts = (contacts or []) + [(m.header.stamp.to_sec(), m.body, m.kind, m.speed)]
+                    continue
                 t = m.header.stamp.to_sec()
                 if kind in ("ground_truth", "estimate", "predicted"):
                     p = m.pose.pose
@@ -132,7 +145,11 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                 elif kind == "status":
                     rows[kind].append((t, m.status, m.progress, m.cross_track))
                 elif kind == "setpoint":
-                    rows[kind].append((t, m.speed, m.handlebar))
+                    rows[kind].append((t, m.speed, m.handlebar, m.brake))
+                elif kind == "guard":
+                    rows[kind].append((t, m.action, m.speed_limit, m.free_distance, m.protective_distance,
+                                       m.scan_stamp.to_sec(), m.direction, m.requested_speed,
+                                       1.0 if m.field == "zone" else 0.0))
                 elif kind == "vehicle":
                     rows[kind].append((t, m.wheel_speed, m.handlebar))
                 elif kind == "planner":
@@ -156,7 +173,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
         path=path_xy,
         status=_series(rows["status"], ("status", "progress", "cross_track")),
         lever=tuple(vehicle.sensors["gps_link"].xyz[:2]),
-        setpoint=_series(rows["setpoint"], ("speed", "handlebar")),
+        setpoint=_series(rows["setpoint"], ("speed", "handlebar", "brake")),
         vehicle=_series(rows["vehicle"], ("speed", "handlebar")),
         calibration=_series(rows["calibration"], cal_cols),
         goal=goal,
@@ -164,6 +181,13 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
         planner=_series(rows["planner"], ("state", "planning_time", "length")),
         path_poses=path_poses,
         footprint=Footprint.from_vehicle(vehicle) if grid is not None else None,
+        guard=_series(rows["guard"], ("action", "limit", "free", "protective", "scan_stamp", "direction",
+                                      "requested", "zone")),
+        actors=sorted(actors, key=lambda a: a[0]),
+        # the simulator reports contacts as they begin: none recorded in a simulated run with
+        # bodies to touch (actors, obstacles, a map) is none made
+        contacts=contacts if contacts is not None else (
+            [] if rows["ground_truth"] and (actors or grid is not None) else None),
     )
 
 

@@ -1,0 +1,201 @@
+"""Metrics of runs with obstacles and actors, against the ground truth.
+
+* ``collisions``: contacts of the vehicle with any body but the ground, from the
+  simulator's own contact points (``/ground_truth/contacts``), each with time, body and
+  speed at impact (``collision_events``);
+* ``min_clearance_m``: the smallest distance, over the run, from the true (unpadded)
+  footprint to any actor, scenario obstacle or occupied map cell; a point ``p`` in the
+  footprint's frame ``(u, w)`` is ``hypot(max(-rear - u, 0, u - front), max(-right - w, 0,
+  w - left))`` from the rectangle;
+* ``protective_stops``: the guard's protective stops (transitions to STOP in the
+  protective field); ``fault_stops``: its fail-safe stops; ``zone_stops``;
+* ``false_stops``: protective stops at a moment when, in the ground truth, no body lay in
+  the footprint swept from the true pose along the stop's direction and handlebar over
+  the protective distance plus ``tolerance`` (nothing was there to stop for);
+* ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
+  limit below 0.05 m/s) while the request was to move;
+* ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
+  the obstacle to the first guarded setpoint with speed 0 and the brake that the recorder
+  received (the PLCClient forwards it on arrival).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Optional
+
+import numpy as np
+
+STOP, HOLD, FAULT = 2, 3, 4
+
+
+def _outline_points(shape: str, x: float, y: float, yaw: float, length: float, width: float,
+                    spacing: float = 0.05) -> np.ndarray:
+    """Points every ``spacing`` m on a body's outline (map frame)."""
+    if shape == "cylinder":
+        r = 0.5 * length
+        n = max(16, int(math.ceil(2 * math.pi * r / spacing)))
+        a = 2 * math.pi * np.arange(n) / n
+        return np.column_stack([x + r * np.cos(a), y + r * np.sin(a)])
+    hx, hy = 0.5 * length, 0.5 * width
+    corners = [(hx, hy), (-hx, hy), (-hx, -hy), (hx, -hy), (hx, hy)]
+    pts = []
+    for (ax, ay), (bx, by) in zip(corners, corners[1:]):
+        n = max(2, int(math.ceil(math.hypot(bx - ax, by - ay) / spacing)))
+        u = np.arange(n) / n
+        pts.append(np.column_stack([ax + u * (bx - ax), ay + u * (by - ay)]))
+    p = np.concatenate(pts)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.column_stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]])
+
+
+def actors_at(actors, t: float) -> np.ndarray:
+    """Every actor's and obstacle's outline points at time ``t`` (positions interpolated)."""
+    if not actors:
+        return np.zeros((0, 2))
+    times = np.array([a[0] for a in actors])
+    i = int(np.searchsorted(times, t))
+    i0, i1 = max(0, min(i - 1, len(actors) - 1)), max(0, min(i, len(actors) - 1))
+    snap0, snap1 = actors[i0][1], actors[i1][1]
+    u = 0.0 if i0 == i1 or times[i1] == times[i0] else (t - times[i0]) / (times[i1] - times[i0])
+    u = min(max(u, 0.0), 1.0)
+    by_name = {b[0]: b for b in snap1}
+    pts = []
+    for b in snap0:
+        name, kind, shape, x, y, yaw, length, width = b
+        b1 = by_name.get(name, b)
+        pts.append(_outline_points(shape, x + u * (b1[3] - x), y + u * (b1[4] - y), yaw, length, width))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))
+
+
+def map_points(grid, lethal: int = 65) -> np.ndarray:
+    """Centres of the map's occupied cells (map frame)."""
+    if grid is None:
+        return np.zeros((0, 2))
+    rows, cols = np.nonzero(grid.data >= lethal)
+    if len(rows) == 0:
+        return np.zeros((0, 2))
+    x, y, _ = grid.to_map_frame((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
+    return np.column_stack([np.asarray(x, dtype=float), np.asarray(y, dtype=float)])
+
+
+def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> np.ndarray:
+    """Distance of each point from the footprint at pose (x, y, yaw) (0 inside)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = pts[:, 0] - x, pts[:, 1] - y
+    u = c * dx + s * dy
+    w = -s * dx + c * dy
+    du = np.maximum(np.maximum(-fp.rear - u, 0.0), u - fp.front)
+    dw = np.maximum(np.maximum(-fp.right - w, 0.0), w - fp.left)
+    return np.hypot(du, dw)
+
+
+def min_clearance(gt, fp, actors, grid, stride: int = 1) -> Optional[float]:
+    """The smallest footprint-to-body distance over the ground truth [m] (None: no bodies)."""
+    fixed = map_points(grid)
+    if len(fixed):  # map cells: their centres, less half a cell's diagonal
+        fixed_margin = 0.5 * math.sqrt(2.0) * grid.resolution
+    else:
+        fixed_margin = 0.0
+    if not actors and len(fixed) == 0 or len(gt) == 0:
+        return None
+    reach = fp.circumscribed_radius + 3.0
+    best = math.inf
+    tree = None
+    if len(fixed):
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(fixed)
+    for i in range(0, len(gt), stride):
+        x, y, yaw, t = float(gt["x"][i]), float(gt["y"][i]), float(gt["yaw"][i]), float(gt.t[i])
+        if tree is not None:
+            near = tree.query_ball_point((x, y), reach)
+            if near:
+                d = rectangle_distance(fp, x, y, yaw, fixed[near]).min() - fixed_margin
+                best = min(best, max(d, 0.0))
+        if actors:
+            pts = actors_at(actors, t)
+            if len(pts):
+                best = min(best, float(rectangle_distance(fp, x, y, yaw, pts).min()))
+    return best if math.isfinite(best) else None
+
+
+def _at(series, key: str, t: float) -> float:
+    if len(series) == 0:
+        return math.nan
+    i = min(int(np.searchsorted(series.t, t)), len(series) - 1)
+    return float(series[key][i])
+
+
+def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
+    """The obstacle keys of ``metrics.json`` (see the module docstring); {} without a guard,
+    actors or contacts in the run."""
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_navigation.fields import free_distance, sweep
+
+    out: Dict[str, object] = {}
+    g = run.guard
+    if run.contacts is not None:
+        out["collisions"] = len(run.contacts)
+        out["collision_events"] = [{"t": c[0], "body": c[1], "kind": c[2], "speed_mps": c[3]} for c in run.contacts]
+    fp = Footprint.from_vehicle(vehicle)
+    if run.actors or run.map is not None:
+        out["min_clearance_m"] = min_clearance(run.ground_truth, fp, run.actors, run.map)
+    if len(g) == 0:
+        return out
+    action = g["action"]
+    prev = np.concatenate([[-1], action[:-1]])
+    entered = np.flatnonzero((action != prev))
+    stops = [i for i in entered if action[i] == STOP and g["zone"][i] == 0]
+    out["protective_stops"] = len(stops)
+    out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT))
+    out["zone_stops"] = int(sum(1 for i in entered if action[i] == STOP and g["zone"][i] == 1))
+    fixed = map_points(run.map)
+    false, latencies = 0, []
+    sp = run.setpoint
+    pad = Footprint.from_vehicle(vehicle, 0.15)
+    for i in stops:
+        t = float(g.t[i])
+        gt = run.ground_truth
+        if len(gt):
+            x, y, yaw = _at(gt, "x", t), _at(gt, "y", t), _at(gt, "yaw", t)
+            direction = int(g["direction"][i]) or 1
+            h = _at(run.vehicle, "handlebar", t) if len(run.vehicle) else 0.0
+            h = 0.0 if not math.isfinite(h) else h
+            length = float(g["protective"][i]) + tolerance
+            poses = sweep(direction, h, h, vehicle.steering.max_rate, 1.0, length, 0.05, vehicle.wheelbase,
+                          vehicle.steering.ratio)
+            pts = actors_at(run.actors, t)
+            if len(fixed):
+                pts = np.concatenate([pts, fixed]) if len(pts) else fixed
+            c, s = math.cos(yaw), math.sin(yaw)
+            local = np.column_stack([c * (pts[:, 0] - x) + s * (pts[:, 1] - y),
+                                     -s * (pts[:, 0] - x) + c * (pts[:, 1] - y)]) if len(pts) else pts
+            if len(local) == 0 or not math.isfinite(free_distance(pad, poses, local, 0.05).distance):
+                false += 1
+        scan = float(g["scan_stamp"][i])
+        if len(sp) and math.isfinite(scan) and scan > 0.0:
+            after = np.flatnonzero((sp.t >= scan) & (sp["speed"] == 0.0) & (sp["brake"] >= 0.99))
+            if len(after):
+                latencies.append(1e3 * (float(sp.t[after[0]]) - scan))
+    out["false_stops"] = false
+    out["stop_latencies_ms"] = latencies
+    req = g["requested"]
+    blocked = ((action == STOP) | (action == HOLD) | (action == FAULT) | (g["limit"] < 0.05)) & (np.abs(req) > 0.1)
+    dt = np.diff(g.t, append=g.t[-1])
+    out["time_blocked_s"] = float(np.sum(dt[blocked]))
+    return out
+
+
+def stop_list(run) -> List[tuple]:
+    """(t, x, y, action) of each stop of the guard (STOP or FAULT), at the true position, for plots."""
+    g, gt = run.guard, run.ground_truth
+    if len(g) == 0 or len(gt) == 0:
+        return []
+    action = g["action"]
+    prev = np.concatenate([[-1], action[:-1]])
+    out = []
+    for i in np.flatnonzero((action != prev) & ((action == STOP) | (action == FAULT))):
+        t = float(g.t[i])
+        out.append((t, _at(gt, "x", t), _at(gt, "y", t), int(action[i])))
+    return out

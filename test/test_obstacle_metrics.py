@@ -1,0 +1,86 @@
+"""The obstacle keys of metrics.json on synthetic runs (quadrivio.obstacle_metrics):
+clearance by hand, false stops judged by the ground truth, latencies, time blocked."""
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio.metrics import RunData, Series
+from quadrivio.obstacle_metrics import min_clearance, obstacle_metrics, rectangle_distance
+from quadrivio_description.vehicle import load_vehicle
+from quadrivio_navigation.costmap import Footprint
+
+V = load_vehicle()
+FP = Footprint.from_vehicle(V)
+
+
+def straight_run(t_end=10.0, speed=1.0, stop_at=None):
+    t = np.arange(0.0, t_end, 0.02)
+    x = speed * np.minimum(t, stop_at if stop_at is not None else t_end)
+    gt = Series(t, {"x": x, "y": np.zeros_like(t), "yaw": np.zeros_like(t), "vx": np.full_like(t, speed),
+                    "wz": np.zeros_like(t)})
+    return gt
+
+
+def person(x, y, t=(0.0, 100.0)):
+    return [(tt, [("bob", "person", "cylinder", x, y, 0.0, 0.6, 0.6)]) for tt in t]
+
+
+def guard_series(rows):
+    a = np.array(rows, dtype=float)
+    names = ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested", "zone")
+    return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+
+
+def test_rectangle_distance_by_hand():
+    pts = np.array([[FP.front + 1.0, 0.0], [0.0, FP.left + 0.5], [FP.front + 3.0, FP.left + 4.0], [0.5, 0.1]])
+    d = rectangle_distance(FP, 0.0, 0.0, 0.0, pts)
+    assert d == pytest.approx([1.0, 0.5, 5.0, 0.0])
+    # rotated a quarter turn: ahead is +y
+    d = rectangle_distance(FP, 0.0, 0.0, math.pi / 2, np.array([[0.0, FP.front + 2.0]]))
+    assert d == pytest.approx([2.0])
+
+
+def test_min_clearance_to_a_person_and_map():
+    gt = straight_run(t_end=8.0, speed=1.0)  # front edge reaches 8 + front
+    bob = person(20.0, 2.0)
+    # closest: front-left corner (8 - 0.02 + front, left) to the cylinder (20, 2) r 0.3
+    fx = 7.98 + FP.front
+    expected = math.hypot(20.0 - fx, 2.0 - FP.left) - 0.3
+    assert min_clearance(gt, FP, bob, None) == pytest.approx(expected, abs=0.01)
+    assert min_clearance(gt, FP, [], None) is None
+
+
+def test_protective_stops_judged_by_the_ground_truth():
+    gt = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
+    rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0], [4.0, 0, 1.5, 3.0, 1.0, 0.0, 1, 1.0, 0],
+            [5.0, 2, 0.0, 0.8, 1.2, 4.97, 1, 1.0, 0], [5.5, 3, 0.0, 0.8, 0.3, 0.0, 1, 1.0, 0],
+            [7.0, 0, 1.5, 9.0, 0.3, 0.0, 1, 1.0, 0]]
+    sp_t = np.array([4.9, 5.0, 5.02, 5.04])
+    setpoint = Series(sp_t, {"speed": np.array([1.0, 1.0, 0.0, 0.0]), "handlebar": np.zeros(4),
+                             "brake": np.array([0.0, 0.0, 1.0, 1.0])})
+    vehicle = Series(gt.t, {"speed": gt["vx"], "handlebar": np.zeros(len(gt))})
+    # a person 0.8 m ahead of the front edge at the stop: a true stop
+    real = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                   vehicle=vehicle, guard=guard_series(rows), actors=person(5.0 + FP.front + 1.1, 0.0), contacts=[])
+    m = obstacle_metrics(real, V)
+    assert m["protective_stops"] == 1 and m["false_stops"] == 0 and m["collisions"] == 0
+    assert m["stop_latencies_ms"] == pytest.approx([50.0])  # the 5.02 s stop setpoint after the 4.97 s scan
+    assert m["time_blocked_s"] == pytest.approx(2.0)  # from 5.0 to 7.0
+    # nothing anywhere near: a false stop
+    empty = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                    vehicle=vehicle, guard=guard_series(rows), actors=person(50.0, 30.0), contacts=[])
+    assert obstacle_metrics(empty, V)["false_stops"] == 1
+    # the person beside the path (out of the swept field): a false stop too
+    beside = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                     vehicle=vehicle, guard=guard_series(rows), actors=person(5.0 + FP.front + 0.5, 2.5), contacts=[])
+    assert obstacle_metrics(beside, V)["false_stops"] == 1
+
+
+def test_contacts_count_with_body_and_speed():
+    gt = straight_run()
+    run = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(),
+                  contacts=[(3.2, "bob", "person", 1.9), (7.0, "map obstacles (tile 0)", "map", 0.4)])
+    m = obstacle_metrics(run, V)
+    assert m["collisions"] == 2
+    assert m["collision_events"][0] == {"t": 3.2, "body": "bob", "kind": "person", "speed_mps": 1.9}
