@@ -42,7 +42,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from common import RESULTS, machine, write_result  # noqa: E402
 
-WITH = ("person_on_path", "orchard_crossing", "orchard_blocked", "laser_dropout", "zone_edge")
+WITH = ("person_on_path", "orchard_crossing", "dog_runs_out", "orchard_blocked", "laser_dropout", "zone_edge")
 WITHOUT = ("figure_eight", "orchard", "rough_terrain")
 
 

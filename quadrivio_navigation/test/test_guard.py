@@ -155,7 +155,7 @@ def scan(xy, n_rays=None, n_invalid=0):
 
 def feed(g, t, speed, handlebar=0.0, front=(), rear=()):
     g.on_state(t, speed, handlebar)
-    g.on_imu(t, 0.0)
+    g.on_pitch(t, 0.0)
     g.on_scan("scan/front", t, scan(front))
     g.on_scan("scan/rear", t, scan(rear))
 
@@ -283,11 +283,7 @@ def test_downhill_lengthens_the_protective_field(vehicle):
     feed(g, 1.0, 2.0)
     flat = g.decide(1.0, 2.0, 0.0).protective
     g2 = make_guard(vehicle)
-    g2.on_state(1.0, 2.0, 0.0)
-    t = 0.0
-    while t < 3.0:  # nose down 10 deg, steady speed: f_x = -g sin(pitch)
-        t += 0.01
-        g2.on_imu(t, -GRAVITY * math.sin(math.radians(10)))
+    g2.on_pitch(3.0, math.radians(10))  # nose down 10 deg, driving forward: downhill
     g2.on_state(3.0, 2.0, 0.0)
     g2.on_scan("scan/front", 3.0, scan([]))
     d = g2.decide(3.0, 2.0, 0.0)
@@ -337,3 +333,23 @@ def test_bad_parameters_are_named(vehicle):
         make_guard(vehicle, margin=1.0, warning_margin=0.5)
     with pytest.raises((ConfigError, ValueError), match="simple polygon"):
         make_guard(vehicle, zone=((0, 0), (10, 10), (10, 0), (0, 10)))
+
+
+def test_standing_at_the_zone_edge_holds_without_creeping(vehicle):
+    g = make_guard(vehicle, zone=SQUARE)
+    feed(g, 1.0, 2.0)
+    g.on_pose(1.0, 27.0, 0.0, 0.0, 0.1)
+    assert g.decide(1.0, 2.0, 0.0).action == STOP and g.zone_stops == 1
+    # stopped 2.3 m short of the edge: asked for 2 m/s again, it stays held (the field of
+    # the speed asked for reaches the edge), and the stop is counted once
+    for k in range(30):
+        t = 2.0 + 0.1 * k
+        feed(g, t, 0.0)
+        g.on_pose(t, 27.0, 0.0, 0.0, 0.1)
+        d = g.decide(t, 2.0, 0.0)
+        assert d.action == HOLD and d.field == "zone" and d.limit == 0.0
+    assert g.zone_stops == 1
+    # asked to back away (reverse), it may
+    feed(g, 6.0, 0.0)
+    g.on_pose(6.0, 27.0, 0.0, 0.0, 0.1)
+    assert g.decide(6.0, -0.5, 0.0).field != "zone"

@@ -59,6 +59,8 @@ class RunData:
     guard: Series = field(default_factory=Series.empty)  # guard/status: t, action, limit, free, protective, ...
     actors: list = field(default_factory=list)  # ground_truth/actors: [(t, [(name, kind, shape, x, y, yaw, l, w)])]
     contacts: Optional[list] = None  # ground_truth/contacts: [(t, body, kind, speed)]; None: not recorded
+    paths: list = field(default_factory=list)  # every path received: [(t, N x 2)] (replans)
+    local_marks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # local_obstacles' marks, all run
 
 
 def _interp_pose(gt: Series, t: np.ndarray):
@@ -115,6 +117,20 @@ def cross_track(gt: Series, path: Optional[np.ndarray], t0: float, t1: float) ->
         d = np.min((a[:, 0] + u * ab[:, 0] - x) ** 2 + (a[:, 1] + u * ab[:, 1] - y) ** 2)
         out.append((t, math.sqrt(d)))
     return np.array(out)
+
+
+def cross_track_replanned(gt: Series, paths: list, t0: float, t1: float) -> Optional[np.ndarray]:
+    """Cross-track error against the path in force at each time: each path from its stamp
+    to the next one's (a replan replaces the route from where the vehicle is)."""
+    pieces = []
+    for k, (tp, xy) in enumerate(paths):
+        end = paths[k + 1][0] if k + 1 < len(paths) else math.inf
+        lo, hi = max(t0, tp), min(t1, end)
+        if hi > lo:
+            xt = cross_track(gt, xy, lo, hi)
+            if xt is not None:
+                pieces.append(xt)
+    return np.concatenate(pieces) if pieces else None
 
 
 def following_window(status: Series, default: tuple) -> tuple:
@@ -206,7 +222,7 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
             m["gps_rmse_m"] = _stats(ge[:, 1])[0]
     if len(gt):
         t0, t1 = following_window(st, (float(gt.t[0]), float(gt.t[-1])))
-        xt = cross_track(gt, run.path, t0, t1)
+        xt = cross_track_replanned(gt, run.paths, t0, t1) if len(run.paths) > 1 else cross_track(gt, run.path, t0, t1)
         if xt is not None and len(xt):
             m["xte_rmse_m"] = float(np.sqrt(np.mean(xt[:, 1] ** 2)))
             m["xte_max_m"] = float(np.max(xt[:, 1]))

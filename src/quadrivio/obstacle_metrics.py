@@ -8,7 +8,8 @@
   footprint's frame ``(u, w)`` is ``hypot(max(-rear - u, 0, u - front), max(-right - w, 0,
   w - left))`` from the rectangle;
 * ``protective_stops``: the guard's protective stops (transitions to STOP in the
-  protective field); ``fault_stops``: its fail-safe stops; ``zone_stops``;
+  protective field); ``fault_stops``: its fail-safe stops of a moving vehicle (a FAULT
+  while standing, before the first scan or pose, stops nothing); ``zone_stops``;
 * ``false_stops``: protective stops at a moment when, in the ground truth, no body lay in
   the footprint swept from the true pose along the stop's direction and handlebar over
   the protective distance plus ``tolerance`` (nothing was there to stop for);
@@ -16,7 +17,9 @@
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
   the obstacle to the first guarded setpoint with speed 0 and the brake that the recorder
-  received (the PLCClient forwards it on arrival).
+  received (the PLCClient forwards it on arrival);
+* ``stop_to_standstill_s``: for each stop (protective or fail-safe), from the decision to
+  the measured wheel speed below 0.1 m/s.
 """
 
 from __future__ import annotations
@@ -148,7 +151,8 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
     entered = np.flatnonzero((action != prev))
     stops = [i for i in entered if action[i] == STOP and g["zone"][i] == 0]
     out["protective_stops"] = len(stops)
-    out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT))
+    moving = np.abs(g["measured"]) >= 0.1 if "measured" in g.cols else np.ones(len(g), dtype=bool)
+    out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT and moving[i]))  # a stop, not a start-up
     out["zone_stops"] = int(sum(1 for i in entered if action[i] == STOP and g["zone"][i] == 1))
     fixed = map_points(run.map)
     false, latencies = 0, []
@@ -180,6 +184,16 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
                 latencies.append(1e3 * (float(sp.t[after[0]]) - scan))
     out["false_stops"] = false
     out["stop_latencies_ms"] = latencies
+    # from each stop's decision (protective or fail-safe) to the vehicle's standstill
+    standstill = []
+    veh = run.vehicle
+    for i in [i for i in entered if action[i] in (STOP, FAULT)]:
+        t = float(g.t[i])
+        if len(veh):
+            after = np.flatnonzero((veh.t >= t) & (np.abs(veh["speed"]) < 0.1))
+            if len(after):
+                standstill.append(float(veh.t[after[0]]) - t)
+    out["stop_to_standstill_s"] = standstill
     req = g["requested"]
     blocked = ((action == STOP) | (action == HOLD) | (action == FAULT) | (g["limit"] < 0.05)) & (np.abs(req) > 0.1)
     dt = np.diff(g.t, append=g.t[-1])

@@ -139,6 +139,9 @@ def trajectory(run: RunData, path: str, title: str) -> None:
             for i in list(range(0, len(gt), step)) + [len(gt) - 1]:
                 ax.add_patch(Polygon(run.footprint.corners(gt["x"][i], gt["y"][i], gt["yaw"][i]), closed=True,
                                      fill=False, lw=0.5, ec="tab:green", alpha=0.6))
+    if len(run.local_marks):
+        ax.plot(run.local_marks[:, 0], run.local_marks[:, 1], ".", color="tab:orange", ms=1.5, alpha=0.5,
+                label="local obstacle layer (marked)", zorder=1)
     _draw_actors(ax, run)
     if len(run.ground_truth):
         ax.plot(run.ground_truth["x"], run.ground_truth["y"], color="tab:green", lw=0.8, alpha=0.8,

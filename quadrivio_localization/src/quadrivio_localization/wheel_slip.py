@@ -36,9 +36,9 @@ Pure and ROS-free; the smoother feeds it its wheel speeds, IMU samples and fixes
 from __future__ import annotations
 
 import math
-from collections import deque
+import bisect
 from dataclasses import dataclass
-from typing import Deque, List, Optional, Tuple
+from typing import List, Optional, Tuple
 
 import numpy as np
 
@@ -61,12 +61,41 @@ class SlipParams:
     rest_speed: float = 0.05  # [m/s]
 
 
+class _Stream:
+    """Time-ordered samples in parallel lists, trimmed in halves (bisect, no deque scans)."""
+
+    def __init__(self) -> None:
+        self.t: List[float] = []
+        self.rows: List[tuple] = []
+
+    def append(self, t: float, row: tuple) -> bool:
+        if self.t and t <= self.t[-1]:
+            return False
+        self.t.append(t)
+        self.rows.append(row)
+        return True
+
+    def trim(self, before: float) -> None:
+        if len(self.t) > 64 and self.t[len(self.t) // 2] < before:
+            del self.t[:len(self.t) // 2], self.rows[:len(self.rows) // 2]
+
+    def at(self, t: float) -> Optional[tuple]:
+        """The newest row at or before ``t``."""
+        i = bisect.bisect_right(self.t, t + 1e-9) - 1
+        return self.rows[i] if i >= 0 else None
+
+    def between(self, t0: float, t1: float) -> List[tuple]:
+        i, j = bisect.bisect_left(self.t, t0), bisect.bisect_right(self.t, t1 + 1e-9)
+        return self.rows[i:j]
+
+
 class WheelSlip:
     def __init__(self, p: SlipParams = SlipParams()) -> None:
         self.p = p
-        self.speeds: Deque[Tuple[float, float]] = deque()  # (t, wheel speed)
-        self.imu: Deque[Tuple[float, float, float, float]] = deque()  # (t, f_x, w_y, pitch)
-        self.fixes: Deque[Tuple[float, float, float, float]] = deque()  # (t, e, n, variance)
+        self.speeds = _Stream()  # (v,)
+        # (f_x, w_y, filtered pitch, integral of f_x, integral of w_y (pitch change), integral of that)
+        self.imu = _Stream()
+        self.fixes = _Stream()  # (e, n, variance)
         self.since: Optional[float] = None  # the slip's start, None without one
         self.body_speed = 0.0  # [m/s] integrated from the IMU since the slip began
         self.body_t: Optional[float] = None
@@ -76,27 +105,35 @@ class WheelSlip:
         self.reason = ""
         self.events: List[str] = []
         self.slips = 0
+        self._gps_cache: Tuple[Optional[float], Optional[float], object] = (None, None, None)
 
     # ------------------------------------------------------------------ input
     def add_speed(self, t: float, v: float) -> None:
-        if self.speeds and t <= self.speeds[-1][0]:
-            return
-        self.speeds.append((t, v))
-        self._trim(t)
+        self.speeds.append(t, (v,))
+        self.speeds.trim(t - self._keep())
+
+    def _keep(self) -> float:
+        return max(self.p.window, self.p.gps_window) + 1.0
 
     def add_imu(self, t: float, fx: float, wy: float, pitch: float) -> None:
         """Forward specific force [m/s^2] and pitch rate [rad/s] in the body frame (REP-103),
         and the levelled pitch [rad] (only to start the filter)."""
-        if self.imu and t <= self.imu[-1][0]:
+        if self.imu.t and t <= self.imu.t[-1]:
             return
-        if self.imu:
-            dt = t - self.imu[-1][0]
+        cf = th = cth = 0.0
+        if self.imu.t:
+            prev_t, (_, _, prev_pitch, cf, th, cth) = self.imu.t[-1], self.imu.rows[-1]
+            dt = t - prev_t
             acc = self._wheel_accel(t)
             measured = math.asin(max(-1.0, min(1.0, (acc - fx) / G)))
             k = min(1.0, dt / self.p.pitch_tau)
-            pitch = self.imu[-1][3] + wy * dt
+            pitch = prev_pitch + wy * dt
             pitch += k * (measured - pitch)
-        self.imu.append((t, fx, wy, pitch))
+            cf += fx * dt
+            th += wy * dt
+            cth += th * dt
+        self.imu.append(t, (fx, wy, pitch, cf, th, cth))
+        self.imu.trim(t - self._keep())
         if self.since is not None:
             if self.body_t is not None:
                 dt = t - self.body_t
@@ -105,33 +142,23 @@ class WheelSlip:
             self.body_t = t
 
     def add_fix(self, t: float, e: float, n: float, variance: float) -> None:
-        if self.fixes and t <= self.fixes[-1][0]:
-            return
-        self.fixes.append((t, e, n, variance))
-
-    def _trim(self, t: float) -> None:
-        keep = max(self.p.window, self.p.gps_window) + 1.0
-        for q in (self.speeds, self.imu, self.fixes):
-            while q and q[0][0] < t - keep:
-                q.popleft()
+        if self.fixes.append(t, (e, n, variance)):
+            self.fixes.trim(t - self._keep())
 
     # ----------------------------------------------------------------- tests
     def _speed_at(self, t: float) -> Optional[float]:
-        best = None
-        for ts, v in self.speeds:
-            if ts > t + 1e-9:
-                break
-            best = v
-        return best
+        row = self.speeds.at(t)
+        return row[0] if row is not None else None
 
     def _imu_test(self, t: float) -> Optional[str]:
         p = self.p
         t0 = t - p.window
         v0, v1 = self._speed_at(t0), self._speed_at(t)
-        samples = [s for s in self.imu if t0 < s[0] <= t]
-        if v0 is None or v1 is None or len(samples) < 3 or self.imu[0][0] > t0:
+        if v0 is None or v1 is None or not self.imu.t or self.imu.t[0] > t0:
             return None
-        dv_i, _ = self._integrate(t0, t)
+        dv_i = self._body_change(t0, t)
+        if dv_i is None:
+            return None
         dv_w = v1 - v0
         sign = 1.0 if v1 + v0 >= 0.0 else -1.0
         if sign * (dv_w - dv_i) > max(p.threshold, p.fraction * abs(dv_w)):
@@ -139,42 +166,53 @@ class WheelSlip:
                     f"{dv_i:+.2f} m/s")
         return None
 
+    def _body_change(self, t0: float, t1: float) -> Optional[float]:
+        """The body's speed change over ``(t0, t1]`` from the IMU: the specific force's
+        integral plus gravity at the filter's pitch at ``t0`` carried on by the gyro alone
+        (``sin(p0 + d) ~ sin(p0) + cos(p0) d``: a window is short), since the filter's pull
+        uses the wheel that is under test."""
+        a, b = self.imu.at(t0), self.imu.at(t1)
+        if a is None or b is None:
+            return None
+        ta = self.imu.t[bisect.bisect_right(self.imu.t, t0 + 1e-9) - 1]
+        tb = self.imu.t[bisect.bisect_right(self.imu.t, t1 + 1e-9) - 1]
+        w = tb - ta
+        p0 = a[2]
+        drift = (b[5] - a[5]) - a[4] * w  # integral of the pitch change since ta
+        return (b[3] - a[3]) + G * math.sin(p0) * w + G * math.cos(p0) * drift
+
     def _wheel_accel(self, t: float) -> float:
         """The wheel speed's slope over its last two samples at or before ``t`` (0 in a slip:
         then it is not the body's)."""
-        if self.since is not None or len(self.speeds) < 2:
+        if self.since is not None or len(self.speeds.t) < 2:
             return 0.0
-        (ta, va), (tb, vb) = self.speeds[-2], self.speeds[-1]
+        ta, tb = self.speeds.t[-2], self.speeds.t[-1]
+        va, vb = self.speeds.rows[-2][0], self.speeds.rows[-1][0]
         return (vb - va) / (tb - ta) if tb > ta and t - tb < 0.25 else 0.0
-
-    def _integrate(self, t0: float, t1: float) -> Tuple[float, float]:
-        """The body's speed change over ``(t0, t1]`` from the IMU with the filter's pitch,
-        and the pitch at ``t1``: through the window the gyro's rate alone (the filter's
-        correction uses the wheel, which is under test)."""
-        before = [s for s in self.imu if s[0] <= t0]
-        pitch = before[-1][3] if before else (self.imu[0][3] if self.imu else 0.0)
-        dv, prev = 0.0, t0
-        for ts, fx, wy, _ in self.imu:
-            if ts <= t0 or ts > t1:
-                continue
-            dt = ts - prev
-            pitch += wy * dt
-            dv += (fx + G * math.sin(pitch)) * dt
-            prev = ts
-        return dv, pitch
 
     def gps_speed(self, t: float) -> Optional[Tuple[float, float, float]]:
         """(speed, its sd, mean wheel speed) over the GPS window, when the fixes there are
-        many enough and mutually consistent; else None."""
+        many enough and mutually consistent; else None. Computed once per new fix (the
+        window moves with the fixes)."""
+        newest = self.fixes.t[-1] if self.fixes.t else None
+        if self._gps_cache[0] == newest and self._gps_cache[1] is not None and t - self._gps_cache[1] < 0.3:
+            return self._gps_cache[2]
+        got = self._gps_fit(t)
+        self._gps_cache = (newest, t, got)
+        return got
+
+    def _gps_fit(self, t: float) -> Optional[Tuple[float, float, float]]:
         p = self.p
-        fx = [f for f in self.fixes if t - p.gps_window <= f[0] <= t]
-        if len(fx) < p.gps_min_fixes:
+        rows = self.fixes.between(t - p.gps_window, t)
+        if len(rows) < p.gps_min_fixes:
             return None
-        a = np.array(fx)
-        tt = a[:, 0] - a[:, 0].mean()
+        i = bisect.bisect_left(self.fixes.t, t - p.gps_window)
+        ts = np.array(self.fixes.t[i:i + len(rows)])
+        a = np.array(rows)
+        tt = ts - ts.mean()
         if float(np.ptp(tt)) < 0.5 * p.gps_window:
             return None
-        w = 1.0 / a[:, 3]
+        w = 1.0 / a[:, 2]
         A = np.column_stack([np.ones_like(tt), tt])
         AtW = A.T * w
         N = AtW @ A
@@ -183,7 +221,7 @@ class WheelSlip:
         except np.linalg.LinAlgError:
             return None
         chi2, vel = 0.0, []
-        for col in (1, 2):
+        for col in (0, 1):
             coef = Ninv @ (AtW @ a[:, col])
             r = a[:, col] - A @ coef
             chi2 += float(np.sum(w * r * r))
@@ -191,7 +229,7 @@ class WheelSlip:
         if chi2 / (2 * len(a) - 4) > p.consistency:
             return None  # not one steady stream (a jump, a burst inside)
         sd = math.sqrt(Ninv[1, 1])
-        ws = [v for ts, v in self.speeds if fx[0][0] <= ts <= t]
+        ws = [r[0] for r in self.speeds.between(float(ts[0]), t)]
         if not ws:
             return None
         return math.hypot(*vel), sd, float(np.mean(np.abs(ws)))
@@ -204,7 +242,7 @@ class WheelSlip:
             return None
         v_g, sd, v_w = got
         if v_w - v_g > max(self.p.threshold, self.p.gps_sigmas * sd):
-            return (f"the wheels say {v_w:.2f} m/s, {len(self.fixes)} consistent GPS fixes of the last "
+            return (f"the wheels say {v_w:.2f} m/s, the consistent GPS fixes of the last "
                     f"{self.p.gps_window:g} s say {v_g:.2f} m/s")
         return None
 
@@ -212,7 +250,6 @@ class WheelSlip:
     def update(self, t: float) -> bool:
         """Whether the wheels slip at ``t`` (the events to log in :attr:`events`)."""
         p = self.p
-        self._trim(t)
         v = self._speed_at(t)
         if self.since is None:
             if v is None or abs(v) < p.rest_speed:
@@ -224,7 +261,10 @@ class WheelSlip:
             self.slips += 1
             before = self._speed_at(t - p.window)
             # the body's speed since the window's start (the slip is seen at its end)
-            dv, self.pitch0 = self._integrate(t - p.window, t)
+            a0, a1 = self.imu.at(t - p.window), self.imu.at(t)
+            dv = self._body_change(t - p.window, t) or 0.0
+            # the pitch before the window (the filter was not misled yet), on by the gyro
+            self.pitch0 = a0[2] + (a1[4] - a0[4]) if a0 is not None and a1 is not None else 0.0
             self.body_speed = (before if before is not None else 0.0) + dv
             self.body_t = t
             self.matched_since = None

@@ -18,7 +18,8 @@ is the segment's profile at the nearest point (at least ``min_speed``, at most
 the segment's end: the profile brings the vehicle to rest at every cusp and at the goal.
 
 At a cusp, once stopped (``|v| < stop_speed``) within ``cusp_tolerance`` of it, the next
-segment starts. At the route's end, once stopped, the follower is DONE when it is within
+segment starts; so it does when the vehicle stands held short of the cusp (by the
+obstacle guard) within that distance. At the route's end, once stopped, the follower is DONE when it is within
 ``goal_tolerance`` and ``heading_tolerance`` of the goal pose, and ABORTED (missed the
 goal, with the errors) otherwise. It aborts at once (full stop) when the cross-track
 error exceeds ``max_cross_track`` or the pose is older than ``max_pose_age``: a stale pose
@@ -250,13 +251,15 @@ class PurePursuit:
         # at the end: by arc length, or (close to it) by having reached the line through it
         at_end = seg_left <= self.p.stop_distance or (seg_left < self.p.lookahead_min and
                                                       along_end <= self.p.stop_distance)
-        if stopped and at_end:
+        # Held short of a cusp by the obstacle guard (the obstacle a replan turns back from
+        # stands beyond it), the vehicle changes direction where it stands
+        if stopped and (at_end or held):
             if not last and end_dist <= self.p.cusp_tolerance and not self.stopping:
                 self.k += 1  # the cusp: take the next segment, from rest
                 self.tracker = Tracker(self.route.segments[self.k].path, self.p.search_window)
                 self.sp_speed = 0.0
                 return self.update(x, y, theta, speed, pose_age, t, held)
-            if last or self.stopping:
+            if (last or self.stopping) and at_end:
                 return self._finish(x, y, theta)
         if self.stopping and stopped:
             self.status = ABORTED

@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
 from quadrivio_description.config import ConfigError, param
-from quadrivio_description.vehicle import GRAVITY, VehicleParams
+from quadrivio_description.vehicle import VehicleParams
 
 from .costmap import Footprint
 from .fields import (ScanPoints, allowed_speed, effective_decel, free_distance, inside, stopping_distance, sweep)
@@ -92,7 +92,8 @@ class GuardParams:
     stop_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake demand of a stop")
     slope_unknown: float = param(0.15, lo=0.0, hi=1.0, unit="rad",
                                  doc="downhill slope assumed while the IMU is silent")
-    slope_tau: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="low-pass time constant of the slope estimate")
+    slope_tau: float = param(1.0, lo=0.01, hi=10.0, unit="s",
+                             doc="time constant of the attitude filter's pull toward the accelerometer")
     imu_timeout: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="after this the slope is slope_unknown")
     zone: Tuple[Tuple[float, float], ...] = param(
         (), unit="m", doc="operating zone, a simple polygon [[x, y], ...] in the map frame; empty: none")
@@ -204,13 +205,12 @@ class Guard:
         self.scans: Dict[str, _Scan] = {s.topic: _Scan() for s in p.scanners}
         self.state: Optional[Tuple[float, float, float]] = None  # (stamp, speed, handlebar)
         self.pose: Optional[Tuple[float, float, float, float, float]] = None  # (stamp, x, y, yaw, sd)
-        self.slope_est: Optional[Tuple[float, float, float, float]] = None  # (t, pitch_lp, fx_lp, dv_lp)
-        self.last_speed: Optional[Tuple[float, float]] = None
-        self.dv = 0.0  # [m/s^2] the wheel speed's last derivative
+        self.slope_est: Optional[Tuple[float, float]] = None  # (t, pitch)
         self.mode = CLEAR  # CLEAR (incl. SLOW), STOP, HOLD, FAULT
         self.clear_since: Optional[float] = None
         self.release_t: Optional[float] = None
         self.last: Optional[Decision] = None
+        self._free_cache = None  # (key, poses, Free) of the last sweep (see _free)
         self.protective_stops = 0
         self.fault_stops = 0
         self.zone_stops = 0
@@ -218,25 +218,13 @@ class Guard:
     # ---------------------------------------------------------------- inputs
     def on_state(self, stamp: float, speed: float, handlebar: float) -> None:
         """The measured rear wheel speed [m/s, signed] and handlebar [rad]."""
-        if self.last_speed is not None and stamp > self.last_speed[0]:
-            self.dv = (speed - self.last_speed[1]) / (stamp - self.last_speed[0])
-        self.last_speed = (stamp, speed)
         self.state = (stamp, speed, handlebar)
 
-    def on_imu(self, stamp: float, fx: float) -> None:
-        """Specific force along base_link's x [m/s^2] (IMU, rotated into base_link): with the
-        wheel speed's derivative ``dv/dt``, ``sin(pitch) = (dv/dt - f_x) / g`` (REP-103:
-        pitch positive nose down), both low-passed with ``slope_tau``."""
-        dv = self.dv
-        if self.slope_est is None or stamp <= self.slope_est[0]:
-            self.slope_est = (stamp, 0.0, fx, dv)
-            return
-        t0, _, fx0, dv0 = self.slope_est
-        a = min(1.0, (stamp - t0) / self.p.slope_tau)
-        fx_lp = fx0 + a * (fx - fx0)
-        dv_lp = dv0 + a * (dv - dv0)
-        s = max(-1.0, min(1.0, (dv_lp - fx_lp) / GRAVITY))
-        self.slope_est = (stamp, math.asin(s), fx_lp, dv_lp)
+    def on_pitch(self, stamp: float, pitch: float) -> None:
+        """The vehicle's pitch [rad] (REP-103: positive nose down), from
+        :class:`quadrivio_navigation.attitude.Attitude` (the IMU with the vehicle's own
+        acceleration taken out)."""
+        self.slope_est = (stamp, pitch)
 
     def on_pose(self, stamp: float, x: float, y: float, yaw: float, sd: float) -> None:
         """The predicted pose in the map frame and its horizontal standard deviation [m]."""
@@ -299,10 +287,8 @@ class Guard:
         d_prot = stopping_distance(v, t_prot, a_brake) + p.margin
         d_prot_req = stopping_distance(v_req, t_prot, a_brake) + p.margin
         d_warn = stopping_distance(max(v, v_req), t_warn, a_slow) + p.warning_margin
-        length = max(d_warn, d_prot) + p.step
-        poses = sweep(direction, h_m, req_handlebar, self.v.steering.max_rate, max(v, v_req), length, p.step,
-                      self.v.wheelbase, self.v.steering.ratio)
-        free = free_distance(self.fp, poses, points, p.step)
+        poses, free = self._free(direction, h_m, req_handlebar, max(v, v_req), max(d_warn, d_prot) + p.step,
+                                 points, stamps)
         d_free = free.distance - v * age  # the vehicle drove on since the scan
         who = owners[free.index] if free.index >= 0 else ""
         d = Decision(CLEAR, allowed_speed(d_free - p.warning_margin, t_warn, a_slow), free=d_free,
@@ -316,10 +302,17 @@ class Guard:
             d.limit = 0.0
             return self._enter(d, now)
         if self.zone is not None:
-            z = self._zone_check(now, poses, d_prot)
+            # the protective distance of the speed asked for too: a vehicle standing at the
+            # edge must not be released toward it, to creep closer stop after stop
+            z = self._zone_check(now, poses, max(d_prot, d_prot_req))
             if z:
-                d.action, d.field, d.reason, d.limit = STOP, "zone", z, 0.0
-                return self._enter(d, now)
+                d.field, d.reason, d.limit = "zone", z, 0.0
+                if v >= p.stop_speed:
+                    d.action = STOP
+                    return self._enter(d, now)
+                d.action, self.mode, self.clear_since = HOLD, HOLD, None
+                self.last = d
+                return d
         if d.limit < v_req:
             d.field = "warning"
             d.reason = (f"obstacle {max(d_free, 0.0):.2f} m along the path in the warning field: speed limited to "
@@ -369,6 +362,23 @@ class Guard:
             if sc.invalid_fraction > p.blind_fraction:
                 return f"{s.topic} blinded: {100 * sc.invalid_fraction:.0f} % of its rays invalid"
         return None
+
+    def _free(self, direction: int, h0: float, h1: float, speed: float, length: float, points: np.ndarray,
+              stamps) -> tuple:
+        """The sweep and its free distance; the same scans, direction and (to 0.01 rad) handlebar
+        angles give the same answer, so the 50 Hz requests between two scans reuse it (the
+        sweep is computed 0.5 m and 0.25 m/s longer and faster than asked, in steps)."""
+        p = self.p
+        key = (tuple(stamps), direction, round(h0, 2), round(h1, 2), math.ceil(speed / 0.25),
+               math.ceil(length / 0.5))
+        if self._free_cache is not None and self._free_cache[0] == key:
+            return self._free_cache[1], self._free_cache[2]
+        poses = sweep(direction, round(h0, 2), round(h1, 2), self.v.steering.max_rate,
+                      0.25 * math.ceil(speed / 0.25), 0.5 * math.ceil(length / 0.5), p.step, self.v.wheelbase,
+                      self.v.steering.ratio)
+        free = free_distance(self.fp, poses, points, p.step)
+        self._free_cache = (key, poses, free)
+        return poses, free
 
     def _points(self, now: float):
         """Every fresh scanner's points (each guards whatever it sees, whichever direction it

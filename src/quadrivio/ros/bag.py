@@ -35,12 +35,13 @@ TOPICS = {
     "guard": "/guard/status",
     "actors": "/ground_truth/actors",
     "contacts": "/ground_truth/contacts",
+    "local": "/local_obstacles",
 }
 # Not /clock: a bag's messages carry their time, `rosbag play --clock` publishes it, and a
 # recorded /clock would make a second publisher of it (12 % of a run's messages).
 RECORD = sorted(set(TOPICS.values()) | {"/imu/data", "/imu/mag", "/gps/vel", "/safety/rollover", "/tf", "/tf_static",
                                         "/diagnostics", "/rosout_agg", "/joint_states", "/scan/front", "/scan/rear",
-                                        "/vehicle/setpoint/request"})
+                                        "/vehicle/setpoint/request", "/local_obstacles"})
 CALIBRATION_FIELDS = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias")
 
 
@@ -105,6 +106,8 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
     goal = None
     grid = None
     actors: List[tuple] = []
+    paths: List[tuple] = []  # (stamp, xy) of every path: a replan replaces the route from then on
+    local_marks: set = set()  # every cell the local obstacle layer marked during the run (map frame, 0.1 m)
     contacts = None
     by_topic = {v: k for k, v in topics.items()}
     with bag:
@@ -117,6 +120,8 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                     path_poses = np.array([(p.pose.position.x, p.pose.position.y, _yaw(p.pose.orientation))
                                            for p in m.poses]) if m.poses else None
                     path_xy = path_poses[:, :2] if path_poses is not None else None
+                    if path_xy is not None:
+                        paths.append((m.header.stamp.to_sec(), path_xy))
                     continue
                 if kind == "goal":
                     goal = (m.pose.position.x, m.pose.position.y, _yaw(m.pose.orientation))
@@ -127,6 +132,14 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                 if kind == "actors":
                     actors.append((m.header.stamp.to_sec(), [(a.name, a.kind, a.shape, a.pose.x, a.pose.y,
                                                               a.pose.theta, a.length, a.width) for a in m.actors]))
+                    continue
+                if kind == "local":
+                    g = _grid(m)
+                    if g is not None:
+                        rows_, cols_ = np.nonzero(g.data >= 100)
+                        if len(rows_):
+                            x, y, _ = g.to_map_frame((cols_ + 0.5) * g.resolution, (rows_ + 0.5) * g.resolution)
+                            local_marks.update(zip(np.round(np.asarray(x, float), 1), np.round(np.asarray(y, float), 1)))
                     continue
                 if kind == "contacts":
                     contacts = (contacts or []) + [(m.header.stamp.to_sec(), m.body, m.kind, m.speed)]
@@ -149,7 +162,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                 elif kind == "guard":
                     rows[kind].append((t, m.action, m.speed_limit, m.free_distance, m.protective_distance,
                                        m.scan_stamp.to_sec(), m.direction, m.requested_speed,
-                                       1.0 if m.field == "zone" else 0.0))
+                                       1.0 if m.field == "zone" else 0.0, m.measured_speed))
                 elif kind == "vehicle":
                     rows[kind].append((t, m.wheel_speed, m.handlebar))
                 elif kind == "planner":
@@ -182,8 +195,10 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
         path_poses=path_poses,
         footprint=Footprint.from_vehicle(vehicle) if grid is not None else None,
         guard=_series(rows["guard"], ("action", "limit", "free", "protective", "scan_stamp", "direction",
-                                      "requested", "zone")),
+                                      "requested", "zone", "measured")),
         actors=sorted(actors, key=lambda a: a[0]),
+        paths=paths,
+        local_marks=np.array(sorted(local_marks)) if local_marks else np.zeros((0, 2)),
         # the simulator reports contacts as they begin: none recorded in a simulated run with
         # bodies to touch (actors, obstacles, a map) is none made
         contacts=contacts if contacts is not None else (

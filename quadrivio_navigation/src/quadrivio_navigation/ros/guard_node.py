@@ -10,13 +10,16 @@ request, when a scan shows something inside the protective field.
 Parameters (private, ``config/guard.yaml``; a scenario's ``guard:`` section overrides):
 the fields of :class:`quadrivio_navigation.guard.GuardParams`, and ``~zone_file`` (str,
 "": a YAML file with ``zone: [[x, y], ...]`` in the map frame, the operating zone, when
-the parameters give none).
+the parameters give none), ``~terrain_from_scenario`` (bool, true) and ``~ground_tolerance``
+(m, 0.15): with a scenario whose terrain is known (a DEM), a return within the tolerance of
+it, from the laser's 3D pose (the predicted pose, the DEM's height there, roll and pitch
+from :class:`quadrivio_navigation.attitude.Attitude`), is the ground, not an obstacle.
 
 Subscribes: ``vehicle/setpoint/request`` (quadrivio_plc/Setpoint), each scanner's topic
 (sensor_msgs/LaserScan; ``scan/front``, ``scan/rear``), ``vehicle/state``
 (quadrivio_plc/VehicleState: the measured speed and handlebar), ``imu/data``
 (sensor_msgs/Imu: the slope), ``localization/predicted`` (nav_msgs/Odometry, with an
-operating zone only), ``/tf_static`` (the scanners' mounts: a scanner whose frame is not
+operating zone or a DEM only), ``/tf_static`` (the scanners' mounts: a scanner whose frame is not
 on it stops the vehicle).
 Publishes: ``vehicle/setpoint/auto`` (quadrivio_plc/Setpoint), ``guard/status``
 (quadrivio_navigation/GuardStatus: every scan and every change of action),
@@ -41,7 +44,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_description.config import ConfigError, load_yaml, param, replace_nested
-from quadrivio_description.frames import matrix_from_quaternion, rotate, yaw_from_quaternion
+from quadrivio_description.frames import matrix_from_quaternion, rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import fatal, node_params, private_params, split_params, vehicle_params, \
@@ -49,7 +52,9 @@ from quadrivio_description.ros.params import fatal, node_params, private_params,
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
 
+from ..attitude import Attitude
 from ..fields import ScanError, check_scan, scan_points
+from ..local_layer import dem_ground
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardParams, check_zone
 from ..msg import GuardStatus
 
@@ -62,6 +67,9 @@ class NodeParams:
     base_frame: str = param("base_link")
     request_timeout: float = param(0.25, lo=0.01, hi=10.0, unit="s",
                                    doc="a request older than this is not repeated as a stop on a scan")
+    terrain_from_scenario: bool = param(True, doc="with a scenario whose terrain is known (a DEM), returns on it "
+                                                  "are the ground, not obstacles")
+    ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m", doc="a return this close to the DEM is the ground")
 
 
 def load_zone_file(path: str):
@@ -96,6 +104,10 @@ class GuardNode:
         self.vehicle = vehicle_params()
         self.core = Guard(p, self.vehicle)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
+        self.attitude = Attitude(p.slope_tau)
+        self.heights = self._terrain()
+        self.pose = None  # (stamp, x, y, yaw) from localization/predicted
+        self.ground_returns = 0
         self.lock = threading.Lock()
         self.inputs = input_guard(max_future=p.max_future)
         self.request = None  # (received at, speed, handlebar, brake)
@@ -112,7 +124,7 @@ class GuardNode:
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
         for s in p.scanners:
             rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
-        if p.zone:
+        if p.zone or self.heights is not None:
             rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         self.diag = diagnostics.updater()
         self.diag.setHardwareID("obstacle guard")
@@ -123,9 +135,48 @@ class GuardNode:
                       ", ".join(f"{s.topic} ({s.covers})" for s in p.scanners), p.brake_decel, p.brake_latency,
                       p.margin, p.warning_margin, f", operating zone of {len(p.zone)} vertices" if p.zone else "")
 
+    def _terrain(self):
+        """The scenario's terrain heights (a DEM) when it has a known one, else None."""
+        key = "/scenario/sim/terrain"
+        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
+            return None
+        from quadrivio_description.config import replace_nested
+        from quadrivio_description.ros.params import run_seed
+        from quadrivio_description.terrain import TerrainParams, build_heightfield
+
+        try:
+            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
+            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
+        except ConfigError as exc:
+            fatal(f"bad scenario terrain: {exc}")
+        if hf is None:
+            return None
+        rospy.loginfo("obstacle guard: returns on the scenario's %s terrain are the ground", tp.kind)
+        return hf.heights
+
+    def _ground(self, m: LaserScan, mount, now: float):
+        """Which of the scan's returns lie on the DEM (None: no DEM, or no fresh pose)."""
+        pose = self.pose
+        if self.heights is None or pose is None or now - pose[0] > 0.5:
+            return None
+        _, x, y, yaw = pose
+        R_map = np.array(rpy_matrix((self.attitude.roll, self.attitude.pitch, yaw)))
+        z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
+        t_b = np.array([mount[0], mount[1], mount[4]])
+        ground = dem_ground(self.heights, np.array([x, y, z0]) + R_map @ t_b, R_map @ mount[3],
+                            self.np.ground_tolerance)
+        r = np.asarray(m.ranges, dtype=float)
+        bearings = m.angle_min + m.angle_increment * np.arange(len(r))
+        hit = np.isfinite(r) & (r >= m.range_min) & (r <= min(m.range_max, MAX_RANGE))
+        out = np.zeros(len(r), dtype=bool)
+        if hit.any():
+            out[hit] = ground(bearings[hit], r[hit])
+        return out
+
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:
             self.core = Guard(self.p, self.vehicle)
+            self.attitude = Attitude(self.p.slope_tau)
             self.request = None
             self.last_action = None
 
@@ -154,7 +205,7 @@ class GuardNode:
             f = tr.header.frame_id
         else:
             return None
-        mount = (float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]), R)
+        mount = (float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]), R, float(t[2]))
         self.mounts[frame] = mount
         return mount
 
@@ -165,14 +216,18 @@ class GuardNode:
             return
         with self.lock:
             self.core.on_state(m.header.stamp.to_sec(), m.wheel_speed, m.handlebar)
+            self.attitude.add_speed(m.header.stamp.to_sec(), m.wheel_speed)
 
     def _on_imu(self, m: Imu) -> None:
-        a = m.linear_acceleration
-        if not self.inputs.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z):
+        a, w = m.linear_acceleration, m.angular_velocity
+        if not self.inputs.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z, w.x, w.y,
+                                 w.z):
             return
         f = rotate(self.imu_mount, (a.x, a.y, a.z))
+        g = rotate(self.imu_mount, (w.x, w.y, w.z))
         with self.lock:
-            self.core.on_imu(m.header.stamp.to_sec(), f[0])
+            self.attitude.add_imu(m.header.stamp.to_sec(), f, g)
+            self.core.on_pitch(m.header.stamp.to_sec(), self.attitude.pitch)
 
     def _on_pose(self, m: Odometry) -> None:
         p, q = m.pose.pose.position, m.pose.pose.orientation
@@ -181,8 +236,10 @@ class GuardNode:
                                  q.z, q.w, c[0], c[7]):
             return
         sd = math.sqrt(max(c[0], c[7], 0.0))
+        yaw = yaw_from_quaternion(q.x, q.y, q.z, q.w)
+        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw)
         with self.lock:
-            self.core.on_pose(m.header.stamp.to_sec(), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w), sd)
+            self.core.on_pose(m.header.stamp.to_sec(), p.x, p.y, yaw, sd)
 
     def _on_scan(self, m: LaserScan, s) -> None:
         check_clock()
@@ -206,7 +263,12 @@ class GuardNode:
         if mount is None:
             points, error = None, f"no transform {self.np.base_frame} <- {s.frame} on /tf_static"
         else:
-            points = scan_points(m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, mount[:3],
+            ranges = m.ranges
+            ground = self._ground(m, mount, now)
+            if ground is not None and ground.any():  # the ground: nothing there (REP 117's +inf)
+                ranges = np.where(ground, np.inf, np.asarray(m.ranges, dtype=float))
+                self.ground_returns += int(ground.sum())
+            points = scan_points(ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, mount[:3],
                                  MAX_RANGE, mount[3])
             error = ""
         with self.lock:
@@ -289,6 +351,7 @@ class GuardNode:
         stat.add("protective stops", str(core.protective_stops))
         stat.add("fail-safe stops", str(core.fault_stops))
         stat.add("zone stops", str(core.zone_stops))
+        stat.add("ground returns (DEM)", str(self.ground_returns) if self.heights is not None else "no DEM")
         stat.add("inputs rejected", self.inputs.summary())
         return stat
 

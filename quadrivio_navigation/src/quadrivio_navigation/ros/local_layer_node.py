@@ -9,8 +9,9 @@ guard's list: topic and frame), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
 terrain is known, returns on it are the ground, not obstacles).
 
 Subscribes: the scanners' topics (sensor_msgs/LaserScan), ``localization/predicted``
-(nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu: roll and pitch,
-with a DEM only), ``/tf_static`` (the scanners' mounts).
+(nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu) and ``vehicle/state``
+(quadrivio_plc/VehicleState): roll and pitch (:class:`quadrivio_navigation.attitude.Attitude`),
+with a DEM only, ``/tf_static`` (the scanners' mounts).
 Publishes: ``local_obstacles`` (nav_msgs/OccupancyGrid at ``~publish_rate``: 100 marked, 0
 seen free, -1 unknown), ``/diagnostics`` (update time, ground returns, rejects).
 
@@ -32,13 +33,16 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
+from quadrivio_plc.msg import VehicleState
+
 from quadrivio_description.config import ConfigError, param
-from quadrivio_description.frames import matrix_from_quaternion, rpy_matrix, tilt_from_gravity, yaw_from_quaternion
+from quadrivio_description.frames import matrix_from_quaternion, rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, split_params, \
     vehicle_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
+from ..attitude import Attitude
 from ..fields import ScanError, check_scan
 from ..guard import ScannerParams
 from ..local_layer import LocalLayer, LocalLayerParams, dem_ground
@@ -65,7 +69,7 @@ class LocalLayerNode:
         self.lock = threading.Lock()
         self.inputs = input_guard()
         self.pose = None  # (stamp, x, y, yaw)
-        self.tilt = (0.0, 0.0)  # roll, pitch from the accelerometer (low-passed)
+        self.attitude = Attitude()  # roll, pitch (the vehicle's own acceleration out)
         self.static = {}
         self.mounts = {}
         self.update_ms = []  # recent update times [ms]
@@ -77,6 +81,7 @@ class LocalLayerNode:
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         if self.heights is not None:
             rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
+            rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         for s in self.np.scanners:
             rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
         self.pub = rospy.Publisher("local_obstacles", OccupancyGrid, queue_size=2)
@@ -140,14 +145,15 @@ class LocalLayerNode:
         self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
 
     def _on_imu(self, m: Imu) -> None:
-        a = m.linear_acceleration
-        if not self.inputs.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z):
+        a, w = m.linear_acceleration, m.angular_velocity
+        if not self.inputs.check("imu/data", m.header.stamp.to_sec(), rospy.get_time(), a.x, a.y, a.z, w.x, w.y, w.z):
             return
-        R = rpy_matrix(self.imu_mount)
-        f = [sum(R[i][j] * v for j, v in enumerate((a.x, a.y, a.z))) for i in range(3)]
-        r, p = tilt_from_gravity(f)
-        k = 0.05  # low-pass (100 Hz: ~0.2 s)
-        self.tilt = (self.tilt[0] + k * (r - self.tilt[0]), self.tilt[1] + k * (p - self.tilt[1]))
+        self.attitude.add_imu(m.header.stamp.to_sec(), rotate(self.imu_mount, (a.x, a.y, a.z)),
+                              rotate(self.imu_mount, (w.x, w.y, w.z)))
+
+    def _on_state(self, m) -> None:
+        if self.inputs.check("vehicle/state", m.header.stamp.to_sec(), rospy.get_time(), m.wheel_speed):
+            self.attitude.add_speed(m.header.stamp.to_sec(), m.wheel_speed)
 
     def _on_scan(self, m: LaserScan, s) -> None:
         check_clock()
@@ -184,7 +190,7 @@ class LocalLayerNode:
         ranges = np.where(np.isfinite(ranges) & ((ranges < m.range_min) | (ranges > m.range_max)), np.nan, ranges)
         ground = None
         if self.heights is not None:
-            roll, pitch = self.tilt
+            roll, pitch = self.attitude.roll, self.attitude.pitch
             R_map = np.array(rpy_matrix((roll, pitch, yaw)))
             z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
             pos = np.array([x, y, z0]) + R_map @ t_b

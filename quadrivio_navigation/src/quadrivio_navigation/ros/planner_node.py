@@ -56,6 +56,7 @@ from quadrivio_description.ros.timer import guarded_timer, input_guard, publish
 from ..maps import MapError, OccupancyGrid as Grid, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult
+from ..replanning import blocked_reason, known_distance, merge_local
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 
@@ -72,8 +73,11 @@ class NodeParams:
     held_replan: float = param(8.0, lo=0.5, hi=600.0, unit="s",
                                doc="replan from where the vehicle stands when the obstacle guard has held it this "
                                    "long on a path that is not blocked (an obstacle beside a tight turn)")
-    known_tolerance: float = param(0.5, lo=0.0, hi=5.0, unit="m",
-                                   doc="local marks this close to the map's obstacles are those obstacles")
+    replan_budget: float = param(5.0, lo=0.1, hi=600.0, unit="s",
+                                 doc="planning budget of a replan from a standing vehicle (it waits anyway)")
+    known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
+                                   doc="local marks this close to the map's obstacles are those obstacles (the marks "
+                                       "lie where the estimated pose puts them: the localization's error included)")
 
 
 def grid_from_msg(m: OccupancyGrid) -> Grid:
@@ -125,6 +129,8 @@ class PlannerNode:
         self.blocked_since: Optional[float] = None
         self.last_try = -math.inf
         self.replans = 0
+        self.block_why = ""  # what blocked the path (BLOCKED retries with it)
+        self.replan_time = self.p.budget + 1.5  # [s] wall, a replan's (building the map's planner included)
         if self.np.check_rate > 0.0:
             rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
             rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
@@ -203,7 +209,7 @@ class PlannerNode:
             return
         if st == PlannerStatus.BLOCKED:
             if rospy.get_time() - self.last_try >= self.np.retry:
-                self.jobs.put(("replan", self.status.reason))
+                self.jobs.put(("replan", self.block_why))
             return
         if st != PlannerStatus.FOUND or self.path_poses is None:
             return
@@ -258,6 +264,7 @@ class PlannerNode:
         if self.goal is None or self.current is None or self.static_grid is None or self.local is None:
             return
         self.last_try = rospy.get_time()
+        self.block_why = why
         goal, problem = self._goal_pose(self.goal)
         if problem:
             return
@@ -273,11 +280,21 @@ class PlannerNode:
             return self._blocked(f"{why}; and the goal is blocked: {occupied}", start_msg)
         rospy.logwarn("planner: %s: replanning from (%.2f, %.2f)", why, start[0], start[1])
         self._set_status(PlannerStatus.PLANNING, why, start=start_msg, goal=self.goal)
-        r = planner.plan(start, goal, cancelled=self.cancel.is_set)
+        budget = self.np.replan_budget if not len(prefix) and abs(self.speed) < 0.2 else None
+        r = planner.plan(start, goal, budget, cancelled=self.cancel.is_set)
         if self.cancel.is_set():
             return
+        took = time.monotonic() - t
+        self.replan_time = max(took, 0.5 * (self.replan_time + took))  # a pessimistic running estimate
         if not r.ok:
             return self._blocked(f"{why}; no other path: {r.reason}", start_msg, r)
+        if self._overtaken(prefix, start):
+            # the vehicle drove past the replan's start while it was being planned: again,
+            # from further ahead (the estimate of the planning time has grown)
+            if self.jobs.empty():
+                self.jobs.put(("replan", why))
+            rospy.logwarn("planner: the vehicle passed the replan's start while planning (%.1f s): again", took)
+            return
         self.replans += 1
         self.blocked_since = None
         self.held_since = None
@@ -290,8 +307,8 @@ class PlannerNode:
 
     def _replan_start(self, planner: Planner):
         """(poses of the current path kept, the replan's start): standing (or no path), the
-        vehicle's pose; moving, the pose of its current path ``speed x (budget + 0.5 s)``
-        ahead, but short of the first pose that collides on the merged map."""
+        vehicle's pose; moving, the pose of its current path ``speed x (planning time +
+        0.5 s)`` ahead, but short of the first pose that collides on the merged map."""
         v = abs(self.speed)
         poses = self.path_poses
         if v < 0.2 or poses is None or len(poses) < 2:
@@ -299,7 +316,7 @@ class PlannerNode:
         i0 = int(np.argmin(np.hypot(poses[:, 0] - self.current[0], poses[:, 1] - self.current[1])))
         seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
         s = np.concatenate([[0.0], np.cumsum(seg)])
-        ahead = v * (self.p.budget + 0.5)
+        ahead = v * (self.replan_time + 0.5)
         j = int(np.searchsorted(s, s[i0] + ahead))
         j = min(j, len(poses) - 1)
         hits = planner.path_collides(poses[i0:j + 1])
@@ -308,6 +325,17 @@ class PlannerNode:
         if j <= i0 + 1:
             return np.zeros((0, 3)), self.current
         return poses[i0:j], tuple(float(a) for a in poses[j])
+
+    def _overtaken(self, prefix: np.ndarray, start) -> bool:
+        """Whether the vehicle is now past the replan's start: more than 1 m from it while
+        that start was where it stood, or beyond it along the kept prefix."""
+        cur = self.current
+        if cur is None:
+            return False
+        if not len(prefix):
+            return math.hypot(cur[0] - start[0], cur[1] - start[1]) > 1.0
+        pts = np.vstack([prefix[:, :2], [start[:2]]])
+        return int(np.argmin(np.hypot(pts[:, 0] - cur[0], pts[:, 1] - cur[1]))) >= len(pts) - 1
 
     def _blocked(self, reason: str, start: PoseStamped, r: Optional[PlanResult] = None) -> None:
         if self.blocked_since is None:
@@ -318,9 +346,7 @@ class PlannerNode:
 
     def _build(self, grid: Grid) -> None:
         self.static_grid = grid
-        from scipy.ndimage import distance_transform_edt
-
-        self.known = distance_transform_edt(grid.data < 65) * grid.resolution
+        self.known = known_distance(grid)
         t = time.monotonic()
         self._set_status(PlannerStatus.IDLE, "preparing the map")
         with self.lock:
@@ -429,68 +455,6 @@ class PlannerNode:
             out.cost, out.length = r.cost, r.length
             out.time_to_first, out.planning_time = r.time_to_first, r.planning_time
         return out
-
-
-def new_marks(local: Grid, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
-              tolerance: float = 0.5) -> np.ndarray:
-    """Map coordinates of the local grid's marked cells that the static map does not hold
-    already (``known``: each static cell's distance to the map's obstacles; a mark within
-    ``tolerance`` of one is that obstacle, seen): the planner planned around those."""
-    rows, cols = np.nonzero(local.data >= 100)
-    if len(rows) == 0:
-        return np.zeros((0, 2))
-    px, py, _ = local.to_map_frame((cols + 0.5) * local.resolution, (rows + 0.5) * local.resolution)
-    pts = np.column_stack([np.asarray(px, float), np.asarray(py, float)])
-    if static is None or known is None:
-        return pts
-    gx, gy, _ = static.to_grid_frame(pts[:, 0], pts[:, 1])
-    col = np.floor(np.asarray(gx) / static.resolution).astype(int)
-    row = np.floor(np.asarray(gy) / static.resolution).astype(int)
-    h, w = known.shape
-    inside = (row >= 0) & (col >= 0) & (row < h) & (col < w)
-    keep = np.ones(len(pts), dtype=bool)
-    keep[inside] = known[row[inside], col[inside]] > tolerance
-    return pts[keep]
-
-
-def blocked_reason(poses: np.ndarray, current: Tuple[float, float, float], local: Grid, footprint,
-                   horizon: float, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
-                   tolerance: float = 0.5) -> str:
-    """Why the path from the pose nearest ``current`` on, for ``horizon`` metres, is blocked
-    by the local grid's marks that the static map does not hold (footprint at each pose), or ''."""
-    from ..fields import inside
-
-    if len(poses) < 2:
-        return ""
-    pts = new_marks(local, static, known, tolerance)
-    if len(pts) == 0:
-        return ""
-    i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
-    seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    ahead = np.flatnonzero((s >= s[i0]) & (s <= s[i0] + horizon))
-    reach = footprint.circumscribed_radius
-    for i in ahead[::2]:
-        x, y, th = poses[i]
-        near = pts[np.abs(pts[:, 0] - x) + np.abs(pts[:, 1] - y) < 2.0 * reach]
-        if len(near) and inside(footprint, near, x, y, th).any():
-            p = near[inside(footprint, near, x, y, th)][0]
-            return (f"the path is blocked {s[i] - s[i0]:.1f} m ahead by an obstacle the map does not hold, at "
-                    f"({p[0]:.1f}, {p[1]:.1f})")
-    return ""
-
-
-def merge_local(static: Grid, local: Grid) -> Grid:
-    """The static map with the local grid's marked cells marked occupied (100)."""
-    data = static.data.copy()
-    rows, cols = np.nonzero(local.data >= 100)
-    if len(rows):
-        px, py, _ = local.to_map_frame((cols + 0.5) * local.resolution, (rows + 0.5) * local.resolution)
-        for x, y in zip(np.atleast_1d(px), np.atleast_1d(py)):
-            if static.contains(float(x), float(y)):
-                r, c = static.cell_of(float(x), float(y))
-                data[r, c] = 100
-    return Grid(data, static.resolution, static.origin)
 
 
 def main() -> None:
