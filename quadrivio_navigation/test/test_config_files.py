@@ -8,11 +8,15 @@ import yaml
 
 from quadrivio_description.config import from_mapping
 from quadrivio_navigation.follower import FollowerConfig
+from quadrivio_navigation.guard import GuardParams
+from quadrivio_navigation.local_layer import LocalLayerParams
 from quadrivio_navigation.maps import MapParams
 from quadrivio_navigation.paths import PathParams
 from quadrivio_navigation.planning import PlannerParams
 from quadrivio_navigation.rollover import RolloverParams
 from quadrivio_navigation.ros.planner_node import NodeParams as PlannerNodeParams
+from quadrivio_navigation.ros.guard_node import NodeParams as GuardNodeParams
+from quadrivio_navigation.ros.local_layer_node import NodeParams as LayerNodeParams
 from quadrivio_navigation.ros.rollover_node import NodeParams as RolloverNodeParams
 
 CONFIG = os.path.join(os.path.dirname(__file__), "..", "config")
@@ -24,6 +28,8 @@ CONFIG = os.path.join(os.path.dirname(__file__), "..", "config")
     ("path.yaml", (PathParams,)),
     ("map_server.yaml", (MapParams,)),
     ("rollover.yaml", (RolloverParams, RolloverNodeParams)),
+    ("guard.yaml", (GuardParams, GuardNodeParams)),
+    ("local_layer.yaml", (LocalLayerParams, LayerNodeParams)),
 ])
 def test_config_file_states_the_defaults(name, classes):
     import dataclasses

@@ -4,8 +4,9 @@ The semantics are costmap_2d's obstacle layer, whose parameters robotics teams k
 
 * every return within ``obstacle_range`` of its scanner **marks** the cell it falls in;
 * every ray **clears** the cells it crosses up to its return (or up to
-  ``raytrace_range`` for a ray that saw nothing, +inf in REP 117), so an obstacle that
-  has moved away is cleared by the rays that now pass through where it was;
+  ``raytrace_range`` for a ray that saw nothing, +inf in REP 117), sampled every cell
+  size, so an obstacle that has moved away is cleared by the rays that now pass through
+  where it was;
 * a mark not seen again for ``decay`` s is forgotten (0: never), so what left the
   scanners' view does not stay forever (costmap_2d's obstacle layer has no decay; its
   voxel-grid successors do);
@@ -44,8 +45,8 @@ class LocalLayerParams:
     size: float = param(24.0, lo=2.0, hi=500.0, unit="m", doc="side of the rolling square grid")
     resolution: float = param(0.1, lo=0.02, hi=2.0, unit="m", doc="cell size")
     obstacle_range: float = param(10.0, lo=0.1, hi=100.0, unit="m", doc="returns further away mark nothing")
-    raytrace_range: float = param(12.0, lo=0.1, hi=100.0, unit="m", doc="rays clear up to here at most")
-    decay: float = param(5.0, lo=0.0, hi=600.0, unit="s", doc="a mark not seen again this long is forgotten (0: never)")
+    raytrace_range: float = param(10.0, lo=0.1, hi=100.0, unit="m", doc="rays clear up to here at most")
+    decay: float = param(15.0, lo=0.0, hi=600.0, unit="s", doc="a mark not seen again this long is forgotten (0: never)")
     ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m",
                                     doc="a return within this of the ground (DEM) or of where the scan plane meets "
                                         "level ground is the ground")
@@ -60,6 +61,7 @@ class LocalLayer:
         self.origin = (0.0, 0.0)  # map coordinates of cell (0, 0)'s corner
         self.placed = False
         self.ground_returns = 0
+        self.t = -math.inf  # the newest scan's time
 
     # ------------------------------------------------------------- geometry
     def recentre(self, x: float, y: float) -> None:
@@ -113,13 +115,13 @@ class LocalLayer:
             hit &= ~g
         # clear along every ray, stopping one cell short of a return
         r = p.resolution
-        steps = np.maximum(0, np.floor((end - (~nothing) * r) / (0.5 * r)).astype(int))
+        steps = np.maximum(0, np.floor((end - (~nothing) * r) / r).astype(int))
         total = int(steps.sum())
         if total:
             ray = np.repeat(np.arange(len(end)), steps)
             first = np.cumsum(steps) - steps
             k = np.arange(total) - np.repeat(first, steps)
-            d = (k + 0.5) * 0.5 * r
+            d = (k + 0.5) * r
             px = sensor[0] + d * ca[ray]
             py = sensor[1] + d * sa[ray]
             row, col, ok = self.cells(np.column_stack([px, py]))
@@ -129,12 +131,18 @@ class LocalLayer:
         if np.any(hit):
             row, col, ok = self.cells(np.column_stack([ex[hit], ey[hit]]))
             self.stamp[row[ok], col[ok]] = t
-        if p.decay > 0.0:
-            old = self.stamp < t - p.decay
-            self.stamp[old] = np.nan
+        self.t = max(self.t, t)
+
+    def decay(self, now: Optional[float] = None) -> None:
+        """Forget the marks not seen again for ``decay`` s (before reading the grid)."""
+        now = self.t if now is None else now
+        if self.p.decay > 0.0:
+            with np.errstate(invalid="ignore"):
+                self.stamp[self.stamp < now - self.p.decay] = np.nan
 
     def occupied(self) -> np.ndarray:
-        """Boolean grid of marked cells (row = y, column = x)."""
+        """Boolean grid of marked cells (row = y, column = x), decayed marks left out."""
+        self.decay()
         return ~np.isnan(self.stamp)
 
     def grid_values(self) -> np.ndarray:
