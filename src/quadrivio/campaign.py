@@ -48,7 +48,11 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
            ("wheel_scale_error_pct", "wheel scale error", "%"), ("outage_end_error_m", "error at outage end", "m"),
            ("outage_10s_error_m", "error 10 s after", "m"), ("dead_wheel_named_after_s", "fault named after", "s"),
            ("gps_not_used", "GPS fixes not used", ""), ("update_p99_ms", "update p99", "ms"),
-           ("cpu_frac", "smoother CPU", ""))
+           ("cpu_frac", "smoother CPU", ""),
+           # closed-loop runs with obstacles and actors (OBSTACLES.md)
+           ("completed", "completed", ""), ("collisions", "collisions", ""),
+           ("min_clearance_m", "min clearance", "m"), ("protective_stops", "protective stops", ""),
+           ("false_stops", "false stops", ""), ("time_blocked_s", "time blocked", "s"))
 
 
 SCHEDULER_TIMEOUT = 10.0  # [s] to connect to --scheduler
@@ -114,7 +118,10 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
     return {"scenario": s.name, "seed": seed, "end": "completed" if p.returncode == 0 else "not completed",
             "rmse_m": m.get("loc_rmse_after_10s_m", m.get("loc_rmse_m")), "gps_rmse_m": m.get("gps_rmse_m"),
             "max_error_m": m.get("loc_max_m"), "heading_rmse_deg": m.get("loc_heading_rmse_deg"),
-            "wall_s": m.get("wall_duration_s")}
+            "wall_s": m.get("wall_duration_s"),
+            "completed": None if m.get("completed") is None else float(bool(m.get("completed"))),
+            **{k: m.get(k) for k in ("collisions", "min_clearance_m", "protective_stops", "false_stops",
+                                     "time_blocked_s")}}
 
 
 def flatten(fig: Dict) -> Dict:
