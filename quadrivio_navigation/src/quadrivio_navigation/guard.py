@@ -10,7 +10,9 @@ drive along its path before it touches a laser point,
   ``d_free < d_prot`` while moving is a protective stop (STOP: speed 0, full brake);
 * **warning field**: the speed is limited to ``v_allow(d_free - warning_margin)`` at the
   gentle deceleration, with the next scan's period in the reaction time, so that a
-  vehicle slowing down as told never enters its protective field at speed (SLOW);
+  vehicle slowing down as told never enters its protective field at speed (SLOW); closer
+  than ``warning_margin`` it may still creep at ``creep_speed`` down to ``creep_margin``
+  (at creep speed the protective field is shorter than that: tight turns past trees);
 * after a stop (STOP or FAULT) the vehicle is held (HOLD) until the protective field of
   the requested speed has been clear for ``clear_time``, then the speed limit is released
   at ``release_accel``.
@@ -75,7 +77,13 @@ class GuardParams:
                                      "dead time and rise (the scan's own age is added per scan)")
     margin: float = param(0.3, lo=0.0, hi=5.0, unit="m", doc="protective field beyond the stopping distance")
     warning_margin: float = param(0.8, lo=0.0, hi=10.0, unit="m",
-                                  doc="where a slowed vehicle comes to rest in front of an obstacle")
+                                  doc="where the warning field's slowdown brings the vehicle to creep speed")
+    creep_speed: float = param(0.3, lo=0.0, hi=2.0, unit="m/s",
+                               doc="the speed still allowed closer than warning_margin, down to creep_margin (tight "
+                                   "turns past trees; 0: none)")
+    creep_margin: float = param(0.5, lo=0.0, hi=10.0, unit="m",
+                                doc="closer than this along the path the vehicle stands (at creep speed it is beyond "
+                                    "the protective field)")
     scan_period: float = param(0.1, lo=0.005, hi=2.0, unit="s",
                                doc="the scanners' period (the warning field allows for a scan this late)")
     scan_timeout: float = param(0.35, lo=0.01, hi=10.0, unit="s",
@@ -105,6 +113,9 @@ class GuardParams:
     def __post_init__(self) -> None:
         if self.warning_margin < self.margin:
             raise ValueError(f"'warning_margin' = {self.warning_margin} must not be below 'margin' = {self.margin}")
+        if not self.margin <= self.creep_margin <= self.warning_margin:
+            raise ValueError(f"'creep_margin' = {self.creep_margin} must lie between 'margin' = {self.margin} and "
+                             f"'warning_margin' = {self.warning_margin}")
         if self.slow_decel > self.brake_decel:
             raise ValueError(f"'slow_decel' = {self.slow_decel} must not exceed 'brake_decel' = {self.brake_decel}")
         if not self.scanners:
@@ -291,7 +302,10 @@ class Guard:
                                  points, stamps)
         d_free = free.distance - v * age  # the vehicle drove on since the scan
         who = owners[free.index] if free.index >= 0 else ""
-        d = Decision(CLEAR, allowed_speed(d_free - p.warning_margin, t_warn, a_slow), free=d_free,
+        limit = allowed_speed(d_free - p.warning_margin, t_warn, a_slow)
+        if d_free >= p.creep_margin:
+            limit = max(limit, p.creep_speed)
+        d = Decision(CLEAR, limit, free=d_free,
                      protective=d_prot, protective_request=d_prot_req, warning=d_warn, nearest=free.point,
                      scanner=who, scan_stamp=self.scans[who].stamp if who else math.nan, direction=direction,
                      slope=slope)

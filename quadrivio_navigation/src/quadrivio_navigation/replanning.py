@@ -74,13 +74,16 @@ def blocked_reason(poses: np.ndarray, current: Tuple[float, float, float], local
     return ""
 
 
-def merge_local(static: Grid, local: Grid) -> Grid:
-    """The static map with the local grid's marked cells marked occupied (100)."""
+def merge_local(static: Grid, local: Grid, known: Optional[np.ndarray] = None, tolerance: float = 0.5) -> Grid:
+    """The static map with the local grid's new marks (:func:`new_marks`) marked occupied
+    (100). The map's own obstacles seen by the lasers are left as the map has them: their
+    marks lie where the estimated pose puts them, and added they narrowed every passage by
+    the localization's error (a vehicle standing between two trees became a start in
+    collision)."""
     data = static.data.copy()
-    rows, cols = np.nonzero(local.data >= 100)
-    if len(rows):
-        px, py, _ = local.to_map_frame((cols + 0.5) * local.resolution, (rows + 0.5) * local.resolution)
-        for x, y in zip(np.atleast_1d(px), np.atleast_1d(py)):
+    pts = new_marks(local, static, known, tolerance)
+    if len(pts):
+        for x, y in pts:
             if static.contains(float(x), float(y)):
                 r, c = static.cell_of(float(x), float(y))
                 data[r, c] = 100

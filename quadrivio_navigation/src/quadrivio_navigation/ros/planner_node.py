@@ -268,7 +268,7 @@ class PlannerNode:
         goal, problem = self._goal_pose(self.goal)
         if problem:
             return
-        merged = merge_local(self.static_grid, self.local)
+        merged = merge_local(self.static_grid, self.local, self.known, self.np.known_tolerance)
         t = time.monotonic()
         planner = Planner(merged, self.vehicle, self.p, self.heights, self.rollover)
         occupied = planner.check_pose(goal, "goal")
