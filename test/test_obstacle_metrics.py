@@ -28,7 +28,8 @@ def person(x, y, t=(0.0, 100.0)):
 
 def guard_series(rows):
     a = np.array(rows, dtype=float)
-    names = ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested", "zone", "measured")
+    names = ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested", "zone", "measured",
+             "handlebar_requested", "handlebar_measured")
     return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
 
 
@@ -53,9 +54,9 @@ def test_min_clearance_to_a_person_and_map():
 
 def test_protective_stops_judged_by_the_ground_truth():
     gt = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
-    rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0, 1.0], [4.0, 0, 1.5, 3.0, 1.0, 0.0, 1, 1.0, 0, 1.0],
-            [5.0, 2, 0.0, 0.8, 1.2, 4.97, 1, 1.0, 0, 1.0], [5.5, 3, 0.0, 0.8, 0.3, 0.0, 1, 1.0, 0, 0.0],
-            [7.0, 0, 1.5, 9.0, 0.3, 0.0, 1, 1.0, 0, 0.0]]
+    rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0], [4.0, 0, 1.5, 3.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0],
+            [5.0, 2, 0.0, 0.8, 1.2, 4.97, 1, 1.0, 0, 1.0, 0, 0], [5.5, 3, 0.0, 0.8, 0.3, 0.0, 1, 1.0, 0, 0.0, 0, 0],
+            [7.0, 0, 1.5, 9.0, 0.3, 0.0, 1, 1.0, 0, 0.0, 0, 0]]
     sp_t = np.array([4.9, 5.0, 5.02, 5.04])
     setpoint = Series(sp_t, {"speed": np.array([1.0, 1.0, 0.0, 0.0]), "handlebar": np.zeros(4),
                              "brake": np.array([0.0, 0.0, 1.0, 1.0])})

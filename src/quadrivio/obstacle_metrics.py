@@ -11,8 +11,9 @@
   protective field); ``fault_stops``: its fail-safe stops of a moving vehicle (a FAULT
   while standing, before the first scan or pose, stops nothing); ``zone_stops``;
 * ``false_stops``: protective stops at a moment when, in the ground truth, no body lay in
-  the footprint swept from the true pose along the stop's direction and handlebar over
-  the protective distance plus ``tolerance`` (nothing was there to stop for);
+  the footprint swept from the true pose as the guard swept it (its direction, from the
+  measured handlebar toward the requested one) over the protective distance plus
+  ``tolerance`` (nothing was there to stop for);
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
@@ -164,10 +165,16 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
         if len(gt):
             x, y, yaw = _at(gt, "x", t), _at(gt, "y", t), _at(gt, "yaw", t)
             direction = int(g["direction"][i]) or 1
-            h = _at(run.vehicle, "handlebar", t) if len(run.vehicle) else 0.0
-            h = 0.0 if not math.isfinite(h) else h
+            # the guard's own sweep: from the measured handlebar toward the requested one
+            h0 = float(g["handlebar_measured"][i]) if "handlebar_measured" in g.cols else math.nan
+            h1 = float(g["handlebar_requested"][i]) if "handlebar_requested" in g.cols else math.nan
+            if not math.isfinite(h0):
+                h0 = _at(run.vehicle, "handlebar", t) if len(run.vehicle) else 0.0
+                h0 = 0.0 if not math.isfinite(h0) else h0
+            h1 = h0 if not math.isfinite(h1) else h1
             length = float(g["protective"][i]) + tolerance
-            poses = sweep(direction, h, h, vehicle.steering.max_rate, 1.0, length, 0.05, vehicle.wheelbase,
+            speed = abs(float(g["measured"][i])) if "measured" in g.cols else 1.0
+            poses = sweep(direction, h0, h1, vehicle.steering.max_rate, speed, length, 0.05, vehicle.wheelbase,
                           vehicle.steering.ratio)
             pts = actors_at(run.actors, t)
             if len(fixed):

@@ -162,7 +162,9 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                 elif kind == "guard":
                     rows[kind].append((t, m.action, m.speed_limit, m.free_distance, m.protective_distance,
                                        m.scan_stamp.to_sec(), m.direction, m.requested_speed,
-                                       1.0 if m.field == "zone" else 0.0, m.measured_speed))
+                                       1.0 if m.field == "zone" else 0.0, m.measured_speed,
+                                       getattr(m, "requested_handlebar", math.nan),
+                                       getattr(m, "measured_handlebar", math.nan)))
                 elif kind == "vehicle":
                     rows[kind].append((t, m.wheel_speed, m.handlebar))
                 elif kind == "planner":
@@ -195,7 +197,8 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
         path_poses=path_poses,
         footprint=Footprint.from_vehicle(vehicle) if grid is not None else None,
         guard=_series(rows["guard"], ("action", "limit", "free", "protective", "scan_stamp", "direction",
-                                      "requested", "zone", "measured")),
+                                      "requested", "zone", "measured", "handlebar_requested",
+                                      "handlebar_measured")),
         actors=sorted(actors, key=lambda a: a[0]),
         paths=paths,
         local_marks=np.array(sorted(local_marks)) if local_marks else np.zeros((0, 2)),

@@ -44,7 +44,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_description.config import ConfigError, load_yaml, param, replace_nested
-from quadrivio_description.frames import matrix_from_quaternion, rotate, rpy_matrix, yaw_from_quaternion
+from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_description.ros import diagnostics, lockstep
 from quadrivio_description.ros.direct import direct_publisher
 from quadrivio_description.ros.params import fatal, node_params, private_params, split_params, vehicle_params, \
@@ -57,6 +57,7 @@ from ..fields import ScanError, check_scan, scan_points
 from ..local_layer import dem_ground
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardParams, check_zone
 from ..msg import GuardStatus
+from .site_inputs import StaticFrames, scenario_terrain
 
 MAX_RANGE = 20.0  # [m] returns beyond this cannot matter for the fields (warning field at 8 m/s: ~16 m)
 
@@ -105,20 +106,17 @@ class GuardNode:
         self.core = Guard(p, self.vehicle)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
         self.attitude = Attitude(p.slope_tau)
-        self.heights = self._terrain()
+        self.heights = scenario_terrain("obstacle guard (returns on the terrain are the ground)",
+                                        self.np.terrain_from_scenario)
         self.pose = None  # (stamp, x, y, yaw) from localization/predicted
         self.ground_returns = 0
         self.lock = threading.Lock()
         self.inputs = input_guard(max_future=p.max_future)
         self.request = None  # (received at, speed, handlebar, brake)
-        self.mounts = {}  # frame -> (x, y, yaw, 3x3 rotation)
-        self.static = {}  # child frame -> geometry_msgs/TransformStamped from /tf_static
+        self.frames = StaticFrames(self.np.base_frame)
         self.last_action = None
         self.pub_sp = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         self.pub_status = direct_publisher("guard/status", GuardStatus, queue_size=20)
-        from tf2_msgs.msg import TFMessage
-
-        rospy.Subscriber("/tf_static", TFMessage, self._on_tf_static, queue_size=10)
         rospy.Subscriber("vehicle/setpoint/request", Setpoint, self._on_request, queue_size=10)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
@@ -134,25 +132,6 @@ class GuardNode:
         rospy.loginfo("obstacle guard: %s; brake %.1f m/s^2 after %.2f s, margins %.2f / %.2f m%s",
                       ", ".join(f"{s.topic} ({s.covers})" for s in p.scanners), p.brake_decel, p.brake_latency,
                       p.margin, p.warning_margin, f", operating zone of {len(p.zone)} vertices" if p.zone else "")
-
-    def _terrain(self):
-        """The scenario's terrain heights (a DEM) when it has a known one, else None."""
-        key = "/scenario/sim/terrain"
-        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
-            return None
-        from quadrivio_description.config import replace_nested
-        from quadrivio_description.ros.params import run_seed
-        from quadrivio_description.terrain import TerrainParams, build_heightfield
-
-        try:
-            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
-            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
-        except ConfigError as exc:
-            fatal(f"bad scenario terrain: {exc}")
-        if hf is None:
-            return None
-        rospy.loginfo("obstacle guard: returns on the scenario's %s terrain are the ground", tp.kind)
-        return hf.heights
 
     def _ground(self, m: LaserScan, mount, now: float):
         """Which of the scan's returns lie on the DEM (None: no DEM, or no fresh pose)."""
@@ -181,33 +160,13 @@ class GuardNode:
             self.last_action = None
 
     # ---------------------------------------------------------------- inputs
-    def _on_tf_static(self, m) -> None:
-        for t in m.transforms:
-            self.static[t.child_frame_id] = t
-        self.mounts = {}
-
     def _mount(self, frame: str):
-        """The frame's (x, y, yaw, rotation) in base_link, chained through /tf_static; None if unknown."""
-        if frame in self.mounts:
-            return self.mounts[frame]
-        R = np.eye(3)
-        t = np.zeros(3)
-        f = frame
-        for _ in range(32):
-            if f == self.np.base_frame:
-                break
-            tr = self.static.get(f)
-            if tr is None:
-                return None
-            q, p = tr.transform.rotation, tr.transform.translation
-            Rp = np.array(matrix_from_quaternion(q.x, q.y, q.z, q.w))
-            R, t = Rp @ R, Rp @ t + np.array([p.x, p.y, p.z])
-            f = tr.header.frame_id
-        else:
+        """The frame's (x, y, yaw, rotation, z) in base_link through /tf_static; None if unknown."""
+        got = self.frames.mount(frame)
+        if got is None:
             return None
-        mount = (float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]), R, float(t[2]))
-        self.mounts[frame] = mount
-        return mount
+        t, R = got
+        return float(t[0]), float(t[1]), math.atan2(R[1, 0], R[0, 0]), R, float(t[2])
 
     def _on_state(self, m: VehicleState) -> None:
         check_clock()
@@ -282,7 +241,7 @@ class GuardNode:
             before, self.last_action = self.last_action, d.action
         if stop_now:  # at once: the next request may be 20 ms away
             self._send(sp, rospy.Time.from_sec(now))
-        self._status(d, speed, sp.speed, before)
+        self._status(d, speed, sp.speed, before, handlebar)
 
     def _on_request(self, m: Setpoint) -> None:
         check_clock()
@@ -297,7 +256,7 @@ class GuardNode:
             before, self.last_action = self.last_action, d.action
         self._send(sp, m.header.stamp)
         if d.action != before:
-            self._status(d, m.speed, sp.speed, before)
+            self._status(d, m.speed, sp.speed, before, m.handlebar)
 
     # --------------------------------------------------------------- outputs
     def _send(self, sp, stamp) -> None:
@@ -306,7 +265,7 @@ class GuardNode:
         out.speed, out.handlebar, out.brake = sp.speed, sp.handlebar, sp.brake
         publish(self.pub_sp, out)
 
-    def _status(self, d, requested: float, commanded: float, before) -> None:
+    def _status(self, d, requested: float, commanded: float, before, handlebar: float) -> None:
         """Publish the decision; log a change of action (``before``: the previous one)."""
         core = self.core
         m = GuardStatus()
@@ -316,6 +275,8 @@ class GuardNode:
         m.speed_limit = d.limit
         m.requested_speed, m.commanded_speed = requested, commanded
         m.measured_speed = core.state[1] if core.state is not None else math.nan
+        m.requested_handlebar = handlebar
+        m.measured_handlebar = core.state[2] if core.state is not None else math.nan
         m.free_distance, m.protective_distance, m.warning_distance = d.free, d.protective, d.warning
         if d.nearest is not None:
             m.has_nearest = True

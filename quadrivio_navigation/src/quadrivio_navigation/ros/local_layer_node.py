@@ -33,19 +33,18 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
-from quadrivio_plc.msg import VehicleState
-
-from quadrivio_description.config import ConfigError, param
-from quadrivio_description.frames import matrix_from_quaternion, rotate, rpy_matrix, yaw_from_quaternion
+from quadrivio_description.config import param
+from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_description.ros import diagnostics, lockstep
-from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, split_params, \
-    vehicle_params, with_scenario
+from quadrivio_description.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario
 from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_plc.msg import VehicleState
 
 from ..attitude import Attitude
 from ..fields import ScanError, check_scan
 from ..guard import ScannerParams
 from ..local_layer import LocalLayer, LocalLayerParams, dem_ground
+from .site_inputs import StaticFrames, scenario_terrain
 
 
 @dataclass(frozen=True)
@@ -70,14 +69,11 @@ class LocalLayerNode:
         self.inputs = input_guard()
         self.pose = None  # (stamp, x, y, yaw)
         self.attitude = Attitude()  # roll, pitch (the vehicle's own acceleration out)
-        self.static = {}
-        self.mounts = {}
         self.update_ms = []  # recent update times [ms]
-        self.heights, self.ground_z0 = self._terrain()
+        self.heights = scenario_terrain("local obstacle layer (returns on the terrain are the ground)",
+                                        self.np.terrain_from_scenario)
+        self.frames = StaticFrames(self.np.base_frame)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
-        from tf2_msgs.msg import TFMessage
-
-        rospy.Subscriber("/tf_static", TFMessage, self._on_tf_static, queue_size=10)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         if self.heights is not None:
             rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
@@ -92,50 +88,10 @@ class LocalLayerNode:
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         on_clock_jump(self._on_clock_jump)
 
-    def _terrain(self):
-        key = "/scenario/sim/terrain"
-        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
-            return None, 0.0
-        from quadrivio_description.config import replace_nested
-        from quadrivio_description.terrain import TerrainParams, build_heightfield
-
-        try:
-            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
-            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
-        except ConfigError as exc:
-            fatal(f"bad scenario terrain: {exc}")
-        if hf is None:
-            return None, 0.0
-        rospy.loginfo("local obstacle layer: returns on the scenario's %s terrain are the ground", tp.kind)
-        return hf.heights, 0.0
-
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:
             self.layer = LocalLayer(self.p)
             self.pose = None
-
-    def _on_tf_static(self, m) -> None:
-        for t in m.transforms:
-            self.static[t.child_frame_id] = t
-        self.mounts = {}
-
-    def _mount(self, frame: str):
-        """The frame's (translation, rotation) in base_link through /tf_static; None if unknown."""
-        if frame in self.mounts:
-            return self.mounts[frame]
-        R, t, f = np.eye(3), np.zeros(3), frame
-        for _ in range(32):
-            if f == self.np.base_frame:
-                self.mounts[frame] = (t, R)
-                return t, R
-            tr = self.static.get(f)
-            if tr is None:
-                return None
-            q, p = tr.transform.rotation, tr.transform.translation
-            Rp = np.array(matrix_from_quaternion(q.x, q.y, q.z, q.w))
-            R, t = Rp @ R, Rp @ t + np.array([p.x, p.y, p.z])
-            f = tr.header.frame_id
-        return None
 
     def _on_pose(self, m: Odometry) -> None:
         p, q = m.pose.pose.position, m.pose.pose.orientation
@@ -169,7 +125,7 @@ class LocalLayerNode:
         except ScanError as exc:
             self.inputs.reject(s.topic, "malformed scan", str(exc))
             return
-        pose, mount = self.pose, self._mount(s.frame)
+        pose, mount = self.pose, self.frames.mount(s.frame)
         if pose is None or now - pose[0] > self.np.max_pose_age:
             self.inputs.reject(s.topic, "no fresh pose", "localization/predicted")
             return

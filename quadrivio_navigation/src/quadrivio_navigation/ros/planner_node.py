@@ -47,10 +47,10 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_description.config import param
 from quadrivio_description.ros import lockstep
-from quadrivio_description.ros.params import (fatal, node_params, private_params, run_seed, split_params,
-                                             vehicle_params, with_scenario)
+from quadrivio_description.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
+                                             with_scenario)
 from quadrivio_description.ros.timer import guarded_timer, input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, load_map
@@ -59,6 +59,7 @@ from ..planning import PlannerParams, Planner, PlanResult
 from ..replanning import blocked_reason, known_distance, merge_local
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
+from .site_inputs import scenario_terrain
 
 
 @dataclass(frozen=True)
@@ -149,22 +150,7 @@ class PlannerNode:
         """Heights of the scenario's simulated terrain (for slope cost), or None."""
         from ..rollover import RolloverParams
 
-        rollover = RolloverParams()
-        key = "/scenario/sim/terrain"
-        if not (self.np.terrain_from_scenario and rospy.has_param(key)):
-            return None, rollover
-        from quadrivio_description.config import replace_nested
-        from quadrivio_description.terrain import TerrainParams, build_heightfield
-
-        try:
-            tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
-            hf = build_heightfield(tp, np.random.default_rng(run_seed()))
-        except ConfigError as exc:
-            fatal(f"bad scenario terrain: {exc}")
-        if hf is None:
-            return None, rollover
-        rospy.loginfo("planner: slope cost from the scenario's %s terrain", tp.kind)
-        return hf.heights, rollover
+        return scenario_terrain("planner (slope cost)", self.np.terrain_from_scenario), RolloverParams()
 
     def _on_map(self, m: OccupancyGrid) -> None:
         try:

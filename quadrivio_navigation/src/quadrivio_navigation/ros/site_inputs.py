@@ -1,0 +1,74 @@
+"""What the guard, the local obstacle layer and the planner share about the vehicle's
+surroundings: the scanners' mounts from ``/tf_static`` and the scenario's known terrain.
+
+* :class:`StaticFrames` keeps every transform of ``/tf_static`` (robot_state_publisher's
+  fixed joints: the lasers' mounts) and chains them to ``base_link``. A frame that is not
+  on it has no mount: the guard stops for it, the layer drops its scans.
+* :func:`scenario_terrain` builds the heights of a scenario whose ``sim: terrain:`` is
+  procedural or a DEM (the same seed as the simulator's), or None: with it, the planner
+  costs slopes and the guard and the layer take returns on it for the ground.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Dict, Optional, Tuple
+
+import numpy as np
+import rospy
+
+from quadrivio_description.config import ConfigError, replace_nested
+from quadrivio_description.frames import matrix_from_quaternion
+from quadrivio_description.ros.params import fatal, run_seed
+
+Mount = Tuple[np.ndarray, np.ndarray]  # translation (3,), rotation 3 x 3 of a frame in the base frame
+
+
+class StaticFrames:
+    def __init__(self, base_frame: str = "base_link") -> None:
+        from tf2_msgs.msg import TFMessage
+
+        self.base = base_frame
+        self.static: Dict[str, object] = {}  # child frame -> geometry_msgs/TransformStamped
+        self.mounts: Dict[str, Mount] = {}
+        rospy.Subscriber("/tf_static", TFMessage, self._on_tf_static, queue_size=10)
+
+    def _on_tf_static(self, m) -> None:
+        for t in m.transforms:
+            self.static[t.child_frame_id] = t
+        self.mounts = {}
+
+    def mount(self, frame: str) -> Optional[Mount]:
+        """``frame`` in the base frame, chained through ``/tf_static``; None if it is not on it."""
+        if frame in self.mounts:
+            return self.mounts[frame]
+        R, t, f = np.eye(3), np.zeros(3), frame
+        for _ in range(32):
+            if f == self.base:
+                self.mounts[frame] = (t, R)
+                return t, R
+            tr = self.static.get(f)
+            if tr is None:
+                return None
+            q, p = tr.transform.rotation, tr.transform.translation
+            Rp = np.array(matrix_from_quaternion(q.x, q.y, q.z, q.w))
+            R, t = Rp @ R, Rp @ t + np.array([p.x, p.y, p.z])
+            f = tr.header.frame_id
+        return None
+
+
+def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+    """The scenario's terrain heights ``z(x, y)`` [m] (map frame), or None without one."""
+    key = "/scenario/sim/terrain"
+    if not (enabled and rospy.has_param(key)):
+        return None
+    from quadrivio_description.terrain import TerrainParams, build_heightfield
+
+    try:
+        tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
+        hf = build_heightfield(tp, np.random.default_rng(run_seed()))
+    except ConfigError as exc:
+        fatal(f"bad scenario terrain: {exc}")
+    if hf is None:
+        return None
+    rospy.loginfo("%s: the scenario's %s terrain is known (a DEM)", who, tp.kind)
+    return hf.heights
