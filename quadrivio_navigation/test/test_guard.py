@@ -183,6 +183,10 @@ def test_obstacle_in_the_protective_field_stops(vehicle):
     # braking: still STOP, counted once
     feed(g, 1.1, 1.2, front=[[front + 0.5, 0.0]])
     assert g.decide(1.1, 2.0, 0.0).action == STOP and g.protective_stops == 1
+    # the obstacle gone from the field while still braking: STOP for what started it
+    feed(g, 1.2, 0.8)
+    d = g.decide(1.2, 2.0, 0.0)
+    assert d.action == STOP and d.field == "protective" and d.reason.startswith("braking to a stop: obstacle")
 
 
 def test_warning_field_limits_the_speed_without_a_stop(vehicle):
@@ -197,9 +201,13 @@ def test_warning_field_limits_the_speed_without_a_stop(vehicle):
     assert 0.0 < d.limit < 2.0
     assert g.command(d, 2.0, 0.0, 0.0).speed == pytest.approx(d.limit)
     assert g.command(d, -2.0, 0.0, 0.0).speed == pytest.approx(-d.limit)
-    # closer than the warning margin: limit 0 (a gentle hold, no protective stop at rest)
+    # closer than the warning margin: creep speed down to the creep margin, then limit 0
+    # (a gentle hold, no protective stop at rest)
     feed(g, 2.0, 0.0, front=[[front + 0.5, 0.0]])
     d = g.decide(2.0, 2.0, 0.0)
+    assert d.limit == pytest.approx(p.creep_speed) and d.action == SLOW
+    feed(g, 3.0, 0.0, front=[[front + 0.3, 0.0]])
+    d = g.decide(3.0, 2.0, 0.0)
     assert d.limit == 0.0 and d.action == SLOW and g.protective_stops == 0
 
 

@@ -222,6 +222,7 @@ class Guard:
         self.release_t: Optional[float] = None
         self.last: Optional[Decision] = None
         self._free_cache = None  # (key, poses, Free) of the last sweep (see _free)
+        self.stop_field = self.stop_reason = ""  # what started the current STOP or FAULT
         self.protective_stops = 0
         self.fault_stops = 0
         self.zone_stops = 0
@@ -436,6 +437,8 @@ class Guard:
                 self.protective_stops += 1
         if d.action == FAULT and self.mode != FAULT:
             self.fault_stops += 1
+        if self.mode != d.action:
+            self.stop_field, self.stop_reason = d.field, d.reason
         self.mode = d.action
         self.clear_since = None
         self.release_t = None
@@ -450,9 +453,10 @@ class Guard:
         if self.mode in (STOP, FAULT):
             if v_m < p.stop_speed:
                 self.mode = HOLD
-            else:
+            else:  # still braking for what started the stop (a field or a fault)
                 d.action, d.limit = self.mode, 0.0
-                d.reason = d.reason or "braking to a stop"
+                d.field = self.stop_field
+                d.reason = f"braking to a stop: {self.stop_reason}"
                 self.last = d
                 return d
         if self.mode == HOLD:
