@@ -56,6 +56,8 @@ def variant(name: str, speed: float, folder: str) -> str:
     data.setdefault("follower", {}).setdefault("profile", {})["speed"] = speed
     if "map" in data and "file" in data["map"] and not os.path.isabs(data["map"]["file"]):
         data["map"]["file"] = os.path.normpath(os.path.join(os.path.dirname(src), data["map"]["file"]))
+    if "map" in data:  # the lattice's first solution needs over 2 s beside a stack at factor 2
+        data.setdefault("planner", {}).setdefault("budget", 5.0)
     data["name"] = f"{name}_{speed:g}mps"
     path = os.path.join(folder, f"{data['name']}.yaml")
     with open(path, "w") as fh:
