@@ -203,7 +203,7 @@ def test_warning_field_limits_the_speed_without_a_stop(vehicle):
     assert g.command(d, -2.0, 0.0, 0.0).speed == pytest.approx(-d.limit)
     # closer than the warning margin: creep speed down to the creep margin, then limit 0
     # (a gentle hold, no protective stop at rest)
-    feed(g, 2.0, 0.0, front=[[front + 0.5, 0.0]])
+    feed(g, 2.0, 0.0, front=[[front + 0.6, 0.0]])
     d = g.decide(2.0, 2.0, 0.0)
     assert d.limit == pytest.approx(p.creep_speed) and d.action == SLOW
     feed(g, 3.0, 0.0, front=[[front + 0.3, 0.0]])

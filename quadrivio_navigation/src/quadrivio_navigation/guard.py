@@ -81,7 +81,7 @@ class GuardParams:
     creep_speed: float = param(0.3, lo=0.0, hi=2.0, unit="m/s",
                                doc="the speed still allowed closer than warning_margin, down to creep_margin (tight "
                                    "turns past trees; 0: none)")
-    creep_margin: float = param(0.4, lo=0.0, hi=10.0, unit="m",
+    creep_margin: float = param(0.45, lo=0.0, hi=10.0, unit="m",
                                 doc="closer than this along the path the vehicle stands (at creep speed it is beyond "
                                     "the protective field)")
     scan_period: float = param(0.1, lo=0.005, hi=2.0, unit="s",
