@@ -128,6 +128,42 @@ def test_a_hook_that_fails_does_not_stop_the_others(monkeypatch, wall_time):
     assert not watch.check()  # once per jump
 
 
+def test_a_reader_descheduled_between_reading_and_comparing_sees_no_jump(monkeypatch):
+    """Two threads check at once; the first is descheduled right after reading the time
+    (A reads 1.0, B reads 2.0 and stores it, A then compares). Read outside the lock, A's
+    old reading was taken for time moving back (a follower reset itself mid-path)."""
+    monkeypatch.setattr(rospy, "logwarn", lambda *a: None)
+    clock = {"t": 0.0}
+    a_read = threading.Event()
+    b_done = threading.Event()
+
+    def now():
+        clock["t"] += 1.0
+        t = clock["t"]
+        if threading.current_thread().name == "A":
+            a_read.set()
+            b_done.wait(0.3)  # descheduled: B runs meanwhile, if it can
+        return t
+
+    watch = T.ClockWatch(now=now)
+    jumps = []
+    watch.hooks.append(lambda before, after: jumps.append((before, after)))
+
+    def b_check():
+        a_read.wait(2.0)
+        watch.check()
+        b_done.set()
+
+    a = threading.Thread(target=watch.check, name="A")
+    b = threading.Thread(target=b_check, name="B")
+    a.start()
+    b.start()
+    a.join(5.0)
+    b.join(5.0)
+    assert jumps == [] and watch.jumps == 0
+    assert watch.last == 2.0
+
+
 def test_in_sim_time_a_timer_wakes_when_due_not_on_every_tick():
     """SimBeat releases a waiter only once ROS time reaches its time, or moves back."""
     now = [int(10e9)]

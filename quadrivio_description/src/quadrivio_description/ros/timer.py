@@ -260,11 +260,16 @@ class ClockWatch:
             return None
 
     def check(self) -> bool:
-        """True (after running the hooks) when time moved back since the last check."""
-        now = self._read()
-        if now is None:
-            return False
+        """True (after running the hooks) when time moved back since the last check.
+
+        The time is read with the lock held: read outside it, a thread descheduled between
+        its read and the comparison (30 ms at factor 2 on two loaded cores) compared an old
+        reading with the newer one another thread had stored meanwhile, and a follower that
+        saw time "move back" by 30 ms reset itself to the start of its path and aborted."""
         with self.lock:
+            now = self._read()
+            if now is None:
+                return False
             before, jumped = self.last, self.last is not None and now < self.last
             self.last = now
             if not jumped:
