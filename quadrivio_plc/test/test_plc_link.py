@@ -351,3 +351,17 @@ def test_a_resumed_client_reports_what_the_plc_said_while_it_was_stopped(plc):
     assert len(flagged) == 3 and all(s.mode == P.MODE_SAFE for s in flagged)
     assert not link.connected  # and the lost link is still dropped (to reconnect)
     link.close()
+
+
+def test_listening_exposure_names_what_beyond_loopback():
+    from quadrivio_sim.plc_emulator import listening_exposure
+    assert listening_exposure("127.0.0.1") == "" and listening_exposure("::1") == ""
+    assert "every network interface" in listening_exposure("0.0.0.0")
+    assert "not loopback" in listening_exposure("192.168.1.10")
+
+
+def test_without_a_session_the_reported_mode_is_never_a_driving_mode():
+    from quadrivio_plc.client import mode_without_session
+    for last in (-1, P.MODE_SAFE, P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO):
+        assert mode_without_session(last) == P.MODE_SAFE
+    assert mode_without_session(P.MODE_HALT) == P.MODE_HALT

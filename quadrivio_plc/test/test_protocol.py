@@ -193,3 +193,35 @@ def test_key_files(tmp_path):
         P.load_key(str(tmp_path / "short.key"))
     with pytest.raises(P.KeyFileError, match="missing.key does not exist"):
         P.load_key(str(tmp_path / "missing.key"))
+
+
+@pytest.mark.parametrize("text, needle", [("", "holds 0 characters"), ("0123456789", "holds 10 characters"),
+                                          (" \n\t  \n", "holds only whitespace")])
+def test_unusable_key_files_name_the_problem(tmp_path, text, needle):
+    path = tmp_path / "plc.key"
+    path.write_text(text)
+    with pytest.raises(P.KeyFileError, match=needle) as info:
+        P.ensure_key(str(path))
+    assert str(path) in str(info.value)
+
+
+def test_a_directory_is_not_a_key_file(tmp_path):
+    with pytest.raises(P.KeyFileError, match="is a directory"):
+        P.ensure_key(str(tmp_path))
+
+
+def test_key_warnings_name_a_readable_file_and_a_weak_key(tmp_path):
+    good = tmp_path / "good.key"
+    key = P.ensure_key(str(good))
+    assert P.key_warnings(str(good), key) == []  # created 0600, random
+    weak = tmp_path / "weak.key"
+    weak.write_text("aaaaaaaaaaaaaaaa\n")
+    weak.chmod(0o644)
+    warnings = P.key_warnings(str(weak), P.load_key(str(weak)))
+    assert len(warnings) == 2
+    assert all(str(weak) in w for w in warnings)
+    assert "readable by other users (mode 0644)" in warnings[0] and "weak key" in warnings[1]
+    pattern = tmp_path / "pattern.key"
+    pattern.write_text("abababababababab")
+    pattern.chmod(0o600)
+    assert ["weak key" in w for w in P.key_warnings(str(pattern), P.load_key(str(pattern)))] == [True]

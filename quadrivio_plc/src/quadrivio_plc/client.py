@@ -114,6 +114,14 @@ class PlcClock:
         return t
 
 
+def mode_without_session(last_mode: int) -> int:
+    """The mode to report while there is no session: HALT if the PLC was last seen in HALT,
+    else SAFE, never a driving mode. Without a session the PLC brakes to SAFE (PROTOCOL.md,
+    safety contract 2): its watchdog trips within 0.2 s of the last setpoint, and whatever it
+    is in, no setpoint of ours reaches it. HALT is only left on request, so it is still HALT."""
+    return P.MODE_HALT if last_mode == P.MODE_HALT else P.MODE_SAFE
+
+
 @dataclass
 class _Latest:
     t: float  # [s] ROS time of arrival
@@ -183,7 +191,8 @@ class PlcLink:
     """TCP link to the PLC (see module docstring).
 
     Callbacks run in the thread that calls :meth:`poll`: ``on_state(State)``,
-    ``on_ack(Ack)``, ``on_event(level, text)`` for connection events and rejected input.
+    ``on_ack(Ack)``, ``on_event(level, text)`` for connection events and rejected input
+    (level "info", "warn", or "notice": a warning said once, never to be throttled).
     """
 
     RTT_WINDOW = 100_000  # round-trip times kept for the percentiles (10 min at 2 x 50 Hz fits)
@@ -204,6 +213,7 @@ class PlcLink:
         self.sock: Optional[socket.socket] = None
         self.session = False  # the PLC accepted our AUTH: frames may be sent
         self._key = b""
+        self._key_checked = b""  # the key whose file was last checked for key_warnings
         self.opened = 0.0  # clock at TCP connect (HELLO and AUTH must complete within connect_timeout)
         self.lock = threading.Lock()  # socket, out buffer, sequence numbers, sent times
         self.out = bytearray()
@@ -243,6 +253,10 @@ class PlcLink:
         except P.KeyFileError as exc:
             self._fail(str(exc))
             return
+        if self.key is None and key != self._key_checked:
+            self._key_checked = key
+            for warning in P.key_warnings(self.key_file, key):
+                self.on_event("notice", warning)  # once per key, not throttled away by the link's warnings
         try:
             sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
         except OSError as exc:

@@ -323,9 +323,14 @@ def default_key_file() -> str:
     return os.path.join(home, "quadrivio_plc.key")
 
 
+MIN_KEY_DISTINCT = 8  # a key of fewer distinct characters is trivially guessed ("aaaa...", "abab...")
+
+
 def load_key(path: str) -> bytes:
     """The shared key: the file's text, surrounding whitespace removed, at least 16 characters."""
     path = path or default_key_file()
+    if os.path.isdir(path):
+        raise KeyFileError(f"PLC key file {path} is a directory, not a key file")
     try:
         with open(path, "rb") as fh:
             key = fh.read(4096).strip()
@@ -335,9 +340,27 @@ def load_key(path: str) -> bytes:
     except OSError as exc:
         raise KeyFileError(f"PLC key file {path} cannot be read: {exc.strerror or exc}") from None
     if len(key) < MIN_KEY_CHARS:
-        raise KeyFileError(f"PLC key file {path} holds {len(key)} characters; a key needs at least "
-                           f"{MIN_KEY_CHARS}")
+        what = "only whitespace" if key == b"" and os.path.getsize(path) else f"{len(key)} characters"
+        raise KeyFileError(f"PLC key file {path} holds {what}; a key needs at least {MIN_KEY_CHARS} characters")
     return key
+
+
+def key_warnings(path: str, key: bytes) -> List[str]:
+    """What is wrong with a usable key file, each in one line naming it: readable by other users,
+    or a key made of a few repeated characters (both ends call this and log a warning)."""
+    path = path or default_key_file()
+    out = []
+    try:
+        mode = os.stat(path).st_mode & 0o777
+    except OSError:
+        mode = 0
+    if mode & 0o077:
+        out.append(f"PLC key file {path} is readable by other users (mode {mode:04o}): anyone on this machine "
+                   f"can drive the vehicle; chmod 600 {path}")
+    if len(set(key)) < MIN_KEY_DISTINCT:
+        out.append(f"PLC key file {path} holds a weak key ({len(set(key))} distinct characters in {len(key)}): "
+                   f"replace it with a random one, e.g. `openssl rand -hex 32 > {path}`")
+    return out
 
 
 def ensure_key(path: str) -> bytes:

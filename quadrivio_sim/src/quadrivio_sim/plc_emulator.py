@@ -28,6 +28,7 @@ rejected input is counted and logged at most once a second per kind.
 from __future__ import annotations
 
 import errno
+import ipaddress
 import math
 import selectors
 import socket
@@ -501,6 +502,19 @@ class PlcServer:
         self.sel.unregister(self.listener)
         self.listener.close()
         self.sel.close()
+
+
+def listening_exposure(address: str) -> str:
+    """Why a listening address reaches beyond this machine ("" for a loopback one)."""
+    try:
+        ip = ipaddress.ip_address(address)
+    except ValueError:
+        return f"{address} is not a numeric address"
+    if ip.is_loopback:
+        return ""
+    if ip.is_unspecified:
+        return "every network interface of this machine"
+    return "a network interface, not loopback"
 
 
 def is_address_in_use(exc: OSError) -> bool:

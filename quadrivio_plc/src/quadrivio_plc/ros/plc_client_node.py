@@ -15,7 +15,8 @@ Subscribes: ``vehicle/setpoint/auto``, ``vehicle/setpoint/manual`` (quadrivio_pl
 ``safety/interlock`` (quadrivio_plc/Interlock: while one is active, driving modes are
 refused and a driving PLC is sent to SAFE at once).
 Publishes: ``vehicle/state`` (quadrivio_plc/VehicleState) for every PLC state frame, and
-at 10 Hz with FAULT_LINK and NaN measurements while there is no session;
+at 10 Hz with FAULT_LINK, NaN measurements and mode SAFE (HALT if it was in HALT), never a
+driving mode, while there is no session;
 ``/diagnostics`` (link health).
 Services: ``~set_mode`` (quadrivio_plc/SetMode).
 """
@@ -39,7 +40,7 @@ from quadrivio_description.ros.params import node_params, private_params, split_
 from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
 
 from .. import protocol as P
-from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink
+from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink, mode_without_session
 from ..msg import Interlock, Setpoint, VehicleState
 from ..srv import SetMode, SetModeResponse
 
@@ -118,6 +119,8 @@ class PlcClientNode:
     def _log(self, level: str, text: str) -> None:
         if level == "info":
             rospy.loginfo(text)
+        elif level == "notice":
+            rospy.logwarn(text)
         else:
             rospy.logwarn_throttle(2.0, text)
 
@@ -209,7 +212,9 @@ class PlcClientNode:
         m.wheel_speed = m.handlebar = m.throttle = m.brake = math.nan
         m.setpoint_speed = m.setpoint_handlebar = math.nan
         m.plc_time = math.nan
-        m.mode = max(self.mode, P.MODE_SAFE) if self.mode != P.MODE_HALT else P.MODE_HALT
+        # What is known without a session: the PLC is braking to SAFE (or in HALT), whatever it
+        # was last seen in; the next session's first state says for sure
+        self.mode = m.mode = mode_without_session(self.mode)
         m.faults = self.faults | P.FAULT_LINK
         publish(self.pub_state, m)
 

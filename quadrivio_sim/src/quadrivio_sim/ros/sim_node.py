@@ -91,7 +91,7 @@ from ..actors import load_actors
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import LoopHold, Pacer, StaleSlowdown
-from ..plc_emulator import DRIVING, PlcServer
+from ..plc_emulator import DRIVING, PlcServer, listening_exposure
 from ..script import load_script
 from ..simulator import SimParams, Simulator
 
@@ -186,10 +186,20 @@ class SimNode:
             rospy.loginfo("driving the PLC from %s (%.1f s of setpoints)", self.np.script_file, self.sim.script.end)
         plc = self.sim_params.plc
         try:
-            self.server = PlcServer(self.sim.plc, plc.host, plc.port, lambda: self.sim.t, self._log)
+            key = P.ensure_key(plc.key_file)
+        except (P.KeyFileError, OSError) as exc:
+            fatal(f"the emulated PLC has no usable key: {exc}")
+        for warning in P.key_warnings(plc.key_file, key):
+            rospy.logwarn(warning)
+        try:
+            self.server = PlcServer(self.sim.plc, plc.host, plc.port, lambda: self.sim.t, self._log, key=key)
         except OSError as exc:
             fatal(str(exc))
         rospy.loginfo("emulated PLC listening on %s:%d", *self.server.address)
+        exposure = listening_exposure(self.server.address[0])
+        if exposure:
+            rospy.logwarn("the emulated PLC listens on %s (plc.host %s): %s; only the key stands between it and "
+                          "anyone who can reach this port", self.server.address[0], plc.host, exposure)
 
         self.lock = threading.Lock()
         self.requests: "queue.Queue[Callable[[], None]]" = queue.Queue()
