@@ -112,3 +112,17 @@ def test_experiment_checks_its_arguments_before_launching(tmp_path, capsys, args
     assert experiment_cli.main(["figure_eight", "--out", str(out)] + args) == 2
     assert what in _one_clear_line(capsys.readouterr().err)
     assert not out.exists()  # nothing launched, nothing prepared
+
+
+def test_analyze_exits_non_zero_on_a_bag_without_any_topic_it_reads(tmp_path, capsys):
+    bag = tmp_path / "other_drivers.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(100):  # another driver's topic: nothing analyze reads without a mapping
+            fix = NavSatFix()
+            fix.header.stamp = rospy.Time(1.0 + k)
+            b.write("/fix", fix, fix.header.stamp)
+    out = tmp_path / "out"
+    assert analyze_cli.main([str(bag), "--out", str(out)]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert "holds none of the topics the analysis reads" in line and "/gps/fix" in line and "--map" in line
+    assert not out.exists() or not (out / "metrics.json").exists()
