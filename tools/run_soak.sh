@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The long cases of the fault-injection suite (issue 8), called by `make soak` with
 # env.sh sourced: test/faults.test with 10^5 fuzzed frames through a session, 25 000
-# chunks from stranger connections and SOAK_ROUNDS (default 3) rounds of every bad
-# sensor message in a seeded random order.
+# chunks from stranger connections, SOAK_ROUNDS (default 3) rounds of every bad
+# sensor message in a seeded random order, and SOAK_REENTRY_TRIPS (default 10) watchdog
+# trips at speed followed by an operator asking for AUTO again while the vehicle slides.
 # The measured figures go to bench/results/soak.json (written whole, or not at all).
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -17,7 +18,7 @@ printf '[soak] fault injection: 25000 stranger chunks, 100000 session chunks, %s
   "$rounds" "$log"
 results="$ROOT/.setup/test-logs/results/soak"  # absolute: the test node runs in $ROS_HOME
 rm -rf "$results"
-rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" results:="$tmp" time_limit:=3600 > "$log" 2>&1
+rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" reentry_trips:="${SOAK_REENTRY_TRIPS:-10}" results:="$tmp" time_limit:=3600 > "$log" 2>&1
 grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"
 ok=$?
 if [ -s "$tmp" ]; then
@@ -34,6 +35,9 @@ print(f"[soak] stranger connections {st.get('connections')} refused {st.get('ref
       f"/clock min {r.get('stranger_clock_min_ratio')} of its rate")
 print(f"[soak] session fuzz {sf.get('chunks')} chunks in {sf.get('wall_s', float('nan')):.2f} s, modes seen "
       f"{sf.get('modes_seen')}; /clock min {r.get('session_fuzz_clock_min_ratio')} of its rate")
+re = r.get("reentry", [])
+print(f"[soak] re-entry: {len(re)} trips, {sum(x['requests'] for x in re)} requests, "
+      f"{sum(len(x['granted_while_moving']) for x in re)} granted while the body moved")
 print(f"[soak] frozen client: standstill {r.get('frozen_client', {}).get('standstill_after_s')} s after the freeze; "
       f"sensor faults: worst recovery {r.get('sensor_faults_worst_recovery_s')} s; after ~reset: localization "
       f"{r.get('reset_loc_median_m')} m")

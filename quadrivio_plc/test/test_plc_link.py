@@ -365,3 +365,97 @@ def test_without_a_session_the_reported_mode_is_never_a_driving_mode():
     for last in (-1, P.MODE_SAFE, P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO):
         assert mode_without_session(last) == P.MODE_SAFE
     assert mode_without_session(P.MODE_HALT) == P.MODE_HALT
+
+
+class SlotHolder:
+    """A stranger holding authentication slots: ``n`` idle connections from ``source``, each
+    reopened as soon as the PLC closes it (the issue's lock-out attack)."""
+
+    def __init__(self, port, n, source="127.0.0.1"):
+        self.port, self.n, self.source = port, n, source
+        self.stop = threading.Event()
+        self.opened = 0
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _open(self):
+        s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        s.bind((self.source, 0))
+        s.connect(("127.0.0.1", self.port))
+        s.setblocking(False)
+        self.opened += 1
+        return s
+
+    def _run(self):
+        socks = [self._open() for _ in range(self.n)]
+        while not self.stop.is_set():
+            for k, s in enumerate(socks):
+                try:
+                    data = s.recv(4096)
+                except BlockingIOError:
+                    continue
+                except OSError:
+                    data = b""
+                if not data:  # closed by the PLC: reopen at once
+                    s.close()
+                    socks[k] = self._open()
+            time.sleep(0.0005)
+        for s in socks:
+            s.close()
+
+    def close(self):
+        self.stop.set()
+        self.thread.join()
+
+
+@pytest.mark.parametrize("held", [4, 8])
+def test_strangers_holding_the_authentication_slots_cannot_lock_out_the_key_holder(plc, held):
+    """Before: 4 idle connections, each reopened when closed, refused 99 of 99 reconnections of
+    the real client. Now the oldest connection past its grace makes way, and connections wait
+    in the kernel's backlog in arrival order: 20 of 20 sessions within 1 s."""
+    attacker = SlotHolder(plc.port, held)
+    try:
+        wait(lambda: len(plc.server.pending) >= plc.server.p.max_pending)
+        times = []
+        for _ in range(20):
+            time.sleep(0.25)  # every held slot past its grace
+            t0 = time.monotonic()
+            link, stop, th = make_link(plc.port)
+            try:
+                deadline = t0 + 1.0
+                while not link.connected and time.monotonic() < deadline:
+                    time.sleep(0.002)
+                times.append(time.monotonic() - t0 if link.connected else None)
+            finally:
+                stop.set()
+                th.join()
+                link.close()
+            wait(lambda: plc.server.session is None)
+        assert None not in times, f"sessions within 1 s: {sum(t is not None for t in times)} of 20"
+        assert attacker.opened > held  # the stranger kept reopening what was evicted
+        assert plc.server.stats.evicted >= 20
+    finally:
+        attacker.close()
+
+
+def test_a_stranger_address_holds_only_a_few_slots(plc):
+    link, stop, th = make_link(plc.port)  # the known client: 127.0.0.1
+    try:
+        wait(lambda: link.connected)
+    finally:
+        stop.set()
+        th.join()
+        link.close()
+    attacker = SlotHolder(plc.port, 4, source="127.0.0.2")
+    try:
+        wait(lambda: any("127.0.0.2 already has 2 connections authenticating" in line for line in plc.log))
+        assert sum(c.host == "127.0.0.2" for c in list(plc.server.pending.values())) <= 2
+        link, stop, th = make_link(plc.port)  # the known client is not held back by it
+        try:
+            wait(lambda: link.connected, 1.0)
+        finally:
+            stop.set()
+            th.join()
+            link.close()
+    finally:
+        attacker.close()

@@ -58,7 +58,7 @@ class FrameFuzzer:
             f[2] = int(r.choice([0, 1, 3, 255]))
             data = bytes(f)
         elif kind == "unknown type":
-            body = P.HEADER.pack(P.MAGIC, P.VERSION, int(r.choice([0x00, 0x05, 0x7F, 0x90, 0xFF])),
+            body = P.HEADER.pack(P.MAGIC, P.VERSION, int(r.choice([0x00, 0x06, 0x7F, 0x90, 0xFF])),
                                  self._next_seq(), 4) + b"\x01\x02\x03\x04"
             data = body + P.CRC.pack(P.crc16(body))
         elif kind == "bad payload":

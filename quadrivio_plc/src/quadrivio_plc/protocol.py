@@ -4,7 +4,7 @@ See ``PROTOCOL.md`` for the full description. A frame (little-endian)::
 
     offset  size  field
     0       2     magic  b"QV"
-    2       1     version (2)
+    2       1     version (3)
     3       1     message type
     4       2     sequence number (per sender, wraps at 65536)
     6       2     payload length N (at most MAX_PAYLOAD)
@@ -19,7 +19,8 @@ skipped by resynchronising on the next magic. It never raises on input.
 Sessions (version 2): the PLC opens every connection with HELLO (a random nonce); the
 client answers AUTH, an HMAC-SHA256 of the nonce under a shared key read from a file
 (:func:`load_key`). Only then does the PLC act on the connection's frames, and only on
-frames whose sequence number advances (:func:`seq_advanced`).
+frames whose sequence number advances (:func:`seq_advanced`). Version 3 adds RESET, the
+acknowledgement of a stop for a fault, and the re-entry rules it serves (PROTOCOL.md).
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple, Union
 
 MAGIC = b"QV"
-VERSION = 2  # 2: authenticated sessions (HELLO / AUTH), sequence numbers that must advance
+VERSION = 3  # 2: authenticated sessions (HELLO / AUTH), sequence numbers that must advance; 3: RESET,
+#              re-entry at a verified standstill only, latched faults acknowledged
 HEADER = struct.Struct("<2sBBHH")  # magic, version, type, seq, payload length
 CRC = struct.Struct("<H")
 MAX_PAYLOAD = 128
@@ -59,13 +61,22 @@ FAULT_WATCHDOG, FAULT_ESTOP, FAULT_SETPOINT_CLAMPED, FAULT_LINK = 1, 2, 4, 8
 
 # Status / reason codes of ACK and REFUSED frames
 OK, BAD_TRANSITION, WRONG_SOURCE, NOT_ACCEPTING, CLAMPED, BUSY, BAD_VALUE = 0, 1, 2, 3, 4, 5, 6
-NOT_AUTHENTICATED, STALE = 7, 8
+NOT_AUTHENTICATED, STALE, NOT_ACKNOWLEDGED, NOT_AT_STANDSTILL = 7, 8, 9, 10
+FAULT_NAMES = {FAULT_WATCHDOG: "WATCHDOG", FAULT_ESTOP: "ESTOP", FAULT_SETPOINT_CLAMPED: "SETPOINT_CLAMPED",
+               FAULT_LINK: "LINK"}
 STATUS_NAMES = {OK: "ok", BAD_TRANSITION: "mode transition not allowed",
                 WRONG_SOURCE: "setpoint source does not match the mode",
                 NOT_ACCEPTING: "mode does not accept setpoints", CLAMPED: "setpoint clamped to the limits",
                 BUSY: "another client session is active", BAD_VALUE: "value is not a finite number",
                 NOT_AUTHENTICATED: "not authenticated (wrong key, or a frame before AUTH)",
-                STALE: "sequence number did not advance (replayed or out-of-order frame)"}
+                STALE: "sequence number did not advance (replayed or out-of-order frame)",
+                NOT_ACKNOWLEDGED: "a WATCHDOG or LINK fault is not acknowledged (RESET first)",
+                NOT_AT_STANDSTILL: "the vehicle is not at a verified standstill"}
+
+
+def fault_names(faults: int) -> str:
+    """'WATCHDOG+LINK' for a fault mask ('none' for 0)."""
+    return "+".join(name for bit, name in FAULT_NAMES.items() if faults & bit) or "none"
 
 
 @dataclass(frozen=True)
@@ -112,6 +123,18 @@ class Auth:
 
     def pack(self) -> bytes:
         return self.FMT.pack(self.mac)
+
+
+@dataclass(frozen=True)
+class Reset:
+    """Client -> PLC, type 0x05: acknowledge the latched faults in ``faults`` (WATCHDOG, LINK);
+    accepted at a verified standstill only (PROTOCOL.md, Re-entry)."""
+    TYPE = 0x05
+    FMT = struct.Struct("<H")
+    faults: int
+
+    def pack(self) -> bytes:
+        return self.FMT.pack(self.faults)
 
 
 @dataclass(frozen=True)
@@ -174,8 +197,8 @@ class Refused:
         return struct.pack("<B", self.reason) + self.text.encode("utf-8")[:MAX_PAYLOAD - 1]
 
 
-Message = Union[Setpoint, ModeRequest, Heartbeat, Auth, State, Ack, Refused, Hello]
-_FIXED = {cls.TYPE: cls for cls in (Setpoint, ModeRequest, Heartbeat, Auth, State, Ack, Hello)}
+Message = Union[Setpoint, ModeRequest, Heartbeat, Auth, Reset, State, Ack, Refused, Hello]
+_FIXED = {cls.TYPE: cls for cls in (Setpoint, ModeRequest, Heartbeat, Auth, Reset, State, Ack, Hello)}
 
 
 def crc16(data: bytes) -> int:

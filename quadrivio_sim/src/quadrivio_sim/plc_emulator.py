@@ -41,6 +41,7 @@ from quadrivio_plc import protocol as P
 
 from .actuators import Actuation, LowLevelControl
 from .noise import LatencyParams
+from .standstill import StandstillMonitor, StandstillParams
 
 
 @dataclass(frozen=True)
@@ -55,10 +56,22 @@ class PlcParams:
                                    doc="end the session when no valid frame at all arrives for this long (PLC time)")
     auth_timeout: float = param(2.0, lo=0.1, hi=60.0, unit="s",
                                 doc="close a connection that has not authenticated within this (wall time)")
-    max_pending: int = param(4, lo=1, hi=64, doc="connections allowed to be authenticating at once")
+    max_pending: int = param(4, lo=1, hi=64, doc="connections allowed to be authenticating at once; when all are "
+                                                "taken, the oldest one past auth_grace makes way for a new one")
+    auth_grace: float = param(0.2, lo=0.01, hi=10.0, unit="s",
+                              doc="an authenticating connection is never evicted for a newer one before this "
+                                  "(wall time: the key holder answers HELLO within one round trip)")
+    max_pending_per_source: int = param(2, lo=1, hi=64,
+                                        doc="authenticating connections one address may hold, except client_host's "
+                                            "and the last session's")
+    client_host: str = param("127.0.0.1", doc="the PLCClient's address (the vehicle PC's on the real PLC): not held "
+                                              "to max_pending_per_source")
     key_file: str = param("", doc="shared session key; empty: $ROS_HOME/quadrivio_plc.key (created if missing)")
     initial_mode: str = param("SAFE", choices=("HALT", "SAFE"), doc="mode at power-on")
     hold_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake applied in SAFE and HALT")
+    standstill: StandstillParams = param(StandstillParams(),
+                                         doc="what a driving mode needs to be entered from SAFE: the wheel and the "
+                                             "accelerometer at rest for a hold time (PROTOCOL.md, Re-entry)")
     latency: LatencyParams = param(LatencyParams(0.002, 0.0005),
                                    doc="the link's delay of STATE frames (the vehicle's X20 over Ethernet, its task "
                                        "cycle included); a frame leaves at the first physics step at or after "
@@ -70,6 +83,7 @@ ALLOWED = {
     P.MODE_SAFE: {P.MODE_HALT, P.MODE_SAFE, P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO},
 }
 DRIVING = (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO)
+LATCHED = P.FAULT_WATCHDOG | P.FAULT_LINK  # faults that stay until the client acknowledges them (RESET)
 for _m in DRIVING:
     ALLOWED[_m] = {P.MODE_HALT, P.MODE_SAFE, *DRIVING}
 
@@ -90,6 +104,7 @@ class PlcLogic:
     def __init__(self, params: PlcParams, control: LowLevelControl) -> None:
         self.p = params
         self.control = control
+        self.standstill = StandstillMonitor(params.standstill)
         self.reset(0.0)
 
     def reset(self, t: float) -> None:
@@ -105,20 +120,22 @@ class PlcLogic:
         self.watchdog_trips = 0
         self.link_losses = 0
         self.control.reset()
-        self.events: List[str] = []
+        self.standstill.reset(t)
+        self.events: List[Tuple[str, str]] = []  # (kind, text): the node rate-limits them by kind
 
     @property
     def fresh_since(self) -> float:
         """PLC time of the oldest setpoint role the mode depends on (what the watchdog checks)."""
         return min(self.fresh_motion, self.fresh_handlebar)
 
-    def _stop(self, mode: int, fault: int, why: str) -> None:
+    def _stop(self, mode: int, fault: int, why: str, t: float) -> None:
         """Leave a driving mode for SAFE or HALT: brake, handlebar held, setpoints cleared."""
-        self.events.append(f"{why} ({P.mode_name(self.mode)} -> {P.mode_name(mode)})")
+        self.events.append(("stop", f"{why} ({P.mode_name(self.mode)} -> {P.mode_name(mode)})"))
         self.mode = mode
         self.faults |= fault
         self.sp_speed, self.sp_brake = 0.0, self.p.hold_brake
         self.sp_handlebar = self.control.handlebar.angle
+        self.standstill.braking(t)
 
     # -------------------------------------------------------------- frames
     def handle(self, t: float, seq: int, msg: P.Message) -> Optional[P.Ack]:
@@ -129,28 +146,48 @@ class PlcLogic:
             return P.Ack(seq, msg.TYPE, self.request_mode(msg.mode, t), self.mode)
         if isinstance(msg, P.Setpoint):
             return P.Ack(seq, msg.TYPE, self.setpoint(msg.source, msg.speed, msg.handlebar, msg.brake, t), self.mode)
+        if isinstance(msg, P.Reset):
+            return P.Ack(seq, msg.TYPE, self.acknowledge(msg.faults, t), self.mode)
         if isinstance(msg, (P.Heartbeat, P.Auth)):
             return P.Ack(seq, msg.TYPE, P.OK, self.mode)
         return None  # PLC-to-client messages coming back: ignored
 
-    STANDSTILL = 0.2  # [m/s] wheel speed below which a driving mode may be entered from SAFE
+    def acknowledge(self, faults: int, t: float) -> int:
+        """RESET: the client acknowledges latched faults (WATCHDOG, LINK), at a verified standstill only."""
+        latched = self.faults & LATCHED & faults
+        if not latched:
+            return P.OK
+        ok, why = self.standstill.verified(t)
+        if not ok:
+            self.events.append(("refused", f"refused to acknowledge {P.fault_names(latched)}: not at standstill ({why})"))
+            return P.NOT_AT_STANDSTILL
+        self.faults &= ~latched
+        self.events.append(("acknowledged", f"{P.fault_names(latched)} acknowledged"))
+        return P.OK
 
     def request_mode(self, mode: int, t: float = 0.0) -> int:
         if mode not in P.MODE_NAMES or mode not in ALLOWED[self.mode]:
-            self.events.append(f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+            self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
             return P.BAD_TRANSITION
-        if mode in DRIVING and self.mode not in DRIVING and abs(self.control.speed_measured) > self.STANDSTILL:
-            # Braking after a stop, a watchdog trip or a lost link: finish braking first (a
-            # client re-requesting AUTO every cycle must not turn SAFE's full brake into a
-            # ramp to zero).
-            self.events.append(f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}: "
-                               f"vehicle still moving at {self.control.speed_measured:.2f} m/s")
-            return P.BAD_TRANSITION
+        if mode in DRIVING and self.mode not in DRIVING:
+            # Re-entry (PROTOCOL.md): a stop with a fault is acknowledged first, and the
+            # vehicle must stand, verified by the wheel and the accelerometer over a hold
+            # time (a locked wheel reads 0 while the body slides on).
+            if self.faults & LATCHED:
+                self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> "
+                                               f"{P.mode_name(mode)}: {P.fault_names(self.faults & LATCHED)} "
+                                               f"not acknowledged (RESET)"))
+                return P.NOT_ACKNOWLEDGED
+            ok, why = self.standstill.verified(t)
+            if not ok:
+                self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> "
+                                               f"{P.mode_name(mode)}: not at standstill ({why})"))
+                return P.NOT_AT_STANDSTILL
         if mode != self.mode:
             if mode in DRIVING and self.mode not in DRIVING:
                 # Start from standstill with the handlebar where it is; the client has one
                 # watchdog period from now to send its first setpoint.
-                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
                 self.sp_speed, self.sp_brake = 0.0, 0.0
                 self.sp_handlebar = self.control.handlebar.angle
                 self.fresh_motion = self.fresh_handlebar = t
@@ -158,16 +195,14 @@ class PlcLogic:
             elif mode in DRIVING:
                 # Between driving modes: the new source must be fresh within what is left
                 # of the current watchdog period (a mode change never feeds the watchdog).
-                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
                 self.fresh_motion = self.fresh_handlebar = self.fresh_since
                 self.mode = mode
             elif self.mode in DRIVING:
-                self._stop(mode, 0, "stop requested")
+                self._stop(mode, 0, "stop requested", t)
             else:
-                self.events.append(f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}")
+                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
                 self.mode = mode
-        if mode in DRIVING:
-            self.faults &= ~(P.FAULT_WATCHDOG | P.FAULT_LINK)
         self.faults = (self.faults | P.FAULT_ESTOP) if mode == P.MODE_HALT else (self.faults & ~P.FAULT_ESTOP)
         return P.OK
 
@@ -192,8 +227,8 @@ class PlcLogic:
                 self.fresh_handlebar = t
         if clamped:
             self.faults |= P.FAULT_SETPOINT_CLAMPED
-            self.events.append(f"setpoint clamped: speed {speed:.3f} -> {c_speed:.3f} m/s, handlebar "
-                               f"{handlebar:.3f} -> {c_handlebar:.3f} rad, brake {brake:.3f} -> {c_brake:.3f}")
+            self.events.append(("clamped", f"setpoint clamped: speed {speed:.3f} -> {c_speed:.3f} m/s, handlebar "
+                               f"{handlebar:.3f} -> {c_handlebar:.3f} rad, brake {brake:.3f} -> {c_brake:.3f}"))
             return P.CLAMPED
         self.faults &= ~P.FAULT_SETPOINT_CLAMPED
         return P.OK
@@ -201,7 +236,7 @@ class PlcLogic:
     def force_auto(self, t: float) -> None:
         """Debug path: enter AUTO from any mode (simulation test hook, never on the real PLC)."""
         if self.mode != P.MODE_AUTO:
-            self.events.append(f"debug setpoint: mode {P.mode_name(self.mode)} -> AUTO")
+            self.events.append(("mode", f"debug setpoint: mode {P.mode_name(self.mode)} -> AUTO"))
             if self.mode not in DRIVING:
                 self.sp_handlebar = self.control.handlebar.angle
             self.mode = P.MODE_AUTO
@@ -212,15 +247,20 @@ class PlcLogic:
         """The session ended (closed, failed, silent or replaced): a driving PLC brakes to SAFE."""
         self.link_losses += 1
         if self.mode in DRIVING:
-            self._stop(P.MODE_SAFE, P.FAULT_LINK, f"link lost ({why}): braking")
+            self._stop(P.MODE_SAFE, P.FAULT_LINK, f"link lost ({why}): braking", t)
 
     # --------------------------------------------------------------- cycle
-    def cycle(self, t: float, wheel_speed: float, wheel_rate: float) -> Actuation:
-        """One PLC cycle at time ``t``: watchdog, then the low-level loops."""
+    def cycle(self, t: float, wheel_speed: float, wheel_rate: float, accel_x: float = math.nan) -> Actuation:
+        """One PLC cycle at time ``t``: standstill monitor, watchdog, then the low-level loops.
+        ``accel_x``: the PLC accelerometer's specific force along the body's x axis [m/s^2]
+        (NaN: none, standstill from the wheel and slide_timeout alone)."""
+        self.standstill.update(t, wheel_speed, accel_x)
+        for ev in self.standstill.pop_events():
+            self.events.append(("standstill", ev))
         if self.mode in DRIVING and t - self.fresh_since > self.p.watchdog:
             self.watchdog_trips += 1
             self._stop(P.MODE_SAFE, P.FAULT_WATCHDOG,
-                       f"watchdog: no fresh setpoint for {t - self.fresh_since:.3f} s > {self.p.watchdog} s, braking")
+                       f"watchdog: no fresh setpoint for {t - self.fresh_since:.3f} s > {self.p.watchdog} s, braking", t)
         if self.mode in DRIVING:
             return self.control.step(self.sp_speed, self.sp_handlebar, self.sp_brake, wheel_speed, wheel_rate)
         handlebar = None if self.mode == P.MODE_HALT else self.control.handlebar.angle
@@ -231,9 +271,36 @@ class PlcLogic:
         return P.State(t, self.mode, self.faults, self.last_seq, wheel_speed, out.handlebar, out.throttle,
                        out.brake, self.sp_speed, self.sp_handlebar)
 
-    def pop_events(self) -> List[str]:
+    def pop_events(self) -> List[Tuple[str, str]]:
+        """(kind, text) of what happened since the last call; kinds: stop, mode, refused,
+        acknowledged, clamped, standstill."""
         ev, self.events = self.events, []
         return ev
+
+
+class EventThrottle:
+    """At most ``burst`` lines per kind of event in any ``interval`` wall seconds; the rest
+    counted, and the count said on the kind's next line. A flood of valid frames (a refused
+    mode 2,000 times a second, HALT/SAFE alternation, clamped setpoints) costs the log a few
+    lines a second, and a rare event (a watchdog trip) is always said at once."""
+
+    def __init__(self, interval: float = 1.0, burst: int = 3, clock: Callable[[], float] = time.monotonic) -> None:
+        self.interval, self.burst, self.clock = interval, burst, clock
+        self.recent: Dict[str, List[float]] = {}
+        self.suppressed: Dict[str, int] = {}
+
+    def admit(self, kind: str, text: str) -> Optional[str]:
+        """The line to log for this event, or None when it is only counted."""
+        now = self.clock()
+        times = [t for t in self.recent.get(kind, ()) if now - t < self.interval]
+        if len(times) >= self.burst:
+            self.recent[kind] = times
+            self.suppressed[kind] = self.suppressed.get(kind, 0) + 1
+            return None
+        times.append(now)
+        self.recent[kind] = times
+        n = self.suppressed.pop(kind, 0)
+        return text + (f" (and {n} more {kind} events since the last report)" if n else "")
 
 
 @dataclass
@@ -242,6 +309,7 @@ class _Conn:
     peer: str
     nonce: bytes
     opened: float  # wall time of accept
+    host: str = ""
     seq: int = 0  # sequence number of our next frame on this connection
     decoder: P.FrameDecoder = field(default_factory=P.FrameDecoder)
     out: bytearray = field(default_factory=bytearray)
@@ -254,6 +322,7 @@ class _Conn:
 class ServerStats:
     sessions: int = 0
     refused: int = 0  # connections refused: busy, too many pending, failed or missing authentication
+    evicted: int = 0  # authenticating connections closed to make way for a newer one
     auth_failures: int = 0
     stale_frames: int = 0  # frames whose sequence number did not advance (not acted on)
     disconnects: int = 0
@@ -296,6 +365,8 @@ class PlcServer:
         self.sel.register(self.listener, selectors.EVENT_READ, None)
         self.session: Optional[_Conn] = None
         self.pending: Dict[socket.socket, _Conn] = {}
+        self.listening = True  # the listener is polled (not while every pending slot is within its grace)
+        self.known_hosts = {self.p.client_host}  # exempt from max_pending_per_source (+ the last session's)
         self.frames_sent = 0
         self.states_sent = self.acks_sent = 0  # in a session (lockstep counts them)
         self.stats = ServerStats()
@@ -324,6 +395,9 @@ class PlcServer:
     # ------------------------------------------------------------- polling
     def poll(self, timeout: float = 0.0) -> None:
         """Handle pending connections and frames, waiting at most ``timeout`` wall seconds."""
+        wait = self._listen_when_a_slot_can_be_had()
+        if wait is not None:
+            timeout = min(timeout, wait)
         for key, _ in self.sel.select(timeout=max(0.0, timeout)):
             if key.data is None:
                 self._accept()
@@ -341,6 +415,26 @@ class PlcServer:
             for conn in [c for c in self.pending.values() if now - c.opened > self.p.auth_timeout]:
                 self._refuse(conn, P.NOT_AUTHENTICATED, f"no authentication within {self.p.auth_timeout} s")
 
+    def _listen_when_a_slot_can_be_had(self) -> Optional[float]:
+        """Accept new connections only when one can be served: a free pending slot, or an
+        authenticating connection past its grace to evict. Otherwise they wait in the
+        kernel's backlog, in arrival order (a stranger churning its own connections cannot
+        jump ahead of the key holder's), and the listener is not polled: a readable listener
+        that is not accepted from would turn every poll into a busy loop. Returns the wall
+        time until a slot frees by age (None: not full)."""
+        wait = None
+        if len(self.pending) >= self.p.max_pending:
+            oldest = min(c.opened for c in self.pending.values())
+            wait = oldest + self.p.auth_grace - self.wall()
+        can = wait is None or wait <= 0.0
+        if can != self.listening:
+            if can:
+                self.sel.register(self.listener, selectors.EVENT_READ, None)
+            else:
+                self.sel.unregister(self.listener)
+            self.listening = can
+        return None if wait is None else max(0.0, wait)
+
     def _accept(self) -> None:
         try:
             sock, addr = self.listener.accept()
@@ -348,10 +442,20 @@ class PlcServer:
             return
         peer = f"{addr[0]}:{addr[1]}"
         sock.setblocking(False)
-        conn = _Conn(sock, peer, P.new_nonce(), self.wall())
+        conn = _Conn(sock, peer, P.new_nonce(), self.wall(), str(addr[0]))
+        if conn.host not in self.known_hosts:
+            mine = sum(1 for c in self.pending.values() if c.host == conn.host)
+            if mine >= self.p.max_pending_per_source:
+                self._refuse(conn, P.BUSY, f"{conn.host} already has {mine} connections authenticating")
+                return
         if len(self.pending) >= self.p.max_pending:
-            self._refuse(conn, P.BUSY, f"{len(self.pending)} connections are already authenticating")
-            return
+            # Make way: the oldest authenticating connection has had its grace (the listener
+            # is only polled then) and a key holder would have answered HELLO long ago.
+            oldest = min(self.pending.values(), key=lambda c: c.opened)
+            self.stats.evicted += 1
+            self._refuse(oldest, P.BUSY, f"no authentication after {self.wall() - oldest.opened:.2f} s while "
+                                         f"{len(self.pending)} connections were authenticating: evicted for a "
+                                         f"new one")
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.pending[sock] = conn
         self.sel.register(sock, selectors.EVENT_READ, conn)
@@ -457,6 +561,7 @@ class PlcServer:
         self.pending.pop(conn.sock, None)
         conn.authed, conn.last_seq, conn.last_rx = True, seq, t
         self.session = conn
+        self.known_hosts = {self.p.client_host, conn.host}
         self.stats.sessions += 1
         self.log("info", f"PLC session opened by {conn.peer} (mode {P.mode_name(self.logic.mode)})")
         self._send(conn, P.Ack(seq, P.Auth.TYPE, P.OK, self.logic.mode))
@@ -499,7 +604,8 @@ class PlcServer:
             self._end_session("PLC shutting down")
         for conn in list(self.pending.values()):
             self._close(conn)
-        self.sel.unregister(self.listener)
+        if self.listening:
+            self.sel.unregister(self.listener)
         self.listener.close()
         self.sel.close()
 

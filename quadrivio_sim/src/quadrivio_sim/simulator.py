@@ -37,7 +37,8 @@ from .script import SetpointScript
 from .sensors import (CameraSensor, GpsSensor, ImuSensor, LaserSensor, MagSensor, SensorsParams)
 from quadrivio_description.terrain import TerrainParams
 from quadrivio_navigation.maps import MapParams, load_map, obstacles_from_grid
-from .world import Obstacle, PhysicsParams, Pose2D, World
+from .world import Obstacle, PhysicsParams, Pose2D, World, quat_to_rows, rotate_inverse
+from quadrivio_description.vehicle import GRAVITY
 
 
 @dataclass(frozen=True)
@@ -179,6 +180,10 @@ class Simulator:
         self.plc_link = Latency(self.params.plc.latency,
                                 np.random.default_rng([self.params.seed, zlib.crc32(b"plc_link")]))
         self.plc_pending: Deque[Tuple[float, object]] = deque()  # (delivery time, STATE)
+        # The PLC's own accelerometer (its standstill monitor): base_link's specific force
+        # along x from the velocity change over a PLC cycle, with white noise of its own draws
+        self.plc_accel_rng = np.random.default_rng([self.params.seed, zlib.crc32(b"plc_accel")])
+        self.plc_prev_v: Optional[Tuple[float, float, float]] = None
 
     @property
     def t(self) -> float:
@@ -205,7 +210,7 @@ class Simulator:
                 self.plc.setpoint(P.SOURCE_AUTO, *self.script.at(self.t))
             m = self.params.measurement
             act = self.plc.cycle(self.t, m.wheel_speed_scale * w.rear_wheel_speed,
-                                 m.wheel_speed_scale * w.rear_wheel_rate)
+                                 m.wheel_speed_scale * w.rear_wheel_rate, self._plc_accel_x())
             w.set_handlebar(act.handlebar + m.handlebar_offset)
             w.set_drive_torque(act.drive_torque)
             w.set_brake(act.brake_torque)
@@ -235,6 +240,18 @@ class Simulator:
         while self.plc_pending and self.plc_pending[0][0] <= t + 1e-9:
             due.append(("plc_state", self.plc_pending.popleft()[1]))
         return due
+
+    PLC_ACCEL_NOISE = 0.02  # [m/s^2] white noise of the PLC's accelerometer per cycle
+
+    def _plc_accel_x(self) -> float:
+        _, orn, vel, _ = self.world.base_state()
+        prev, self.plc_prev_v = self.plc_prev_v, vel
+        if prev is None:
+            return float("nan")
+        k = 1.0 / (self.cycle_steps * self.dt)
+        a = ((vel[0] - prev[0]) * k, (vel[1] - prev[1]) * k, (vel[2] - prev[2]) * k + GRAVITY)
+        f_x = rotate_inverse(quat_to_rows(orn), a)[0]
+        return f_x + self.PLC_ACCEL_NOISE * float(self.plc_accel_rng.standard_normal())
 
     def _move_actors(self) -> None:
         pos = self.world.base_state()[0]

@@ -18,7 +18,9 @@ Publishes: ``vehicle/state`` (quadrivio_plc/VehicleState) for every PLC state fr
 at 10 Hz with FAULT_LINK, NaN measurements and mode SAFE (HALT if it was in HALT), never a
 driving mode, while there is no session;
 ``/diagnostics`` (link health).
-Services: ``~set_mode`` (quadrivio_plc/SetMode).
+Services: ``~set_mode`` (quadrivio_plc/SetMode); ``~acknowledge`` (std_srvs/Trigger): the
+reset after a stop for a fault (WATCHDOG, LINK), which the PLC takes at a verified standstill
+only and needs before a driving mode is entered again (PROTOCOL.md, Re-entry).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from typing import Dict
 
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
+from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import param
 from quadrivio_description.ros import diagnostics, lockstep
@@ -52,6 +55,7 @@ class NodeParams:
 
 
 DRIVING = (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO)
+LATCHED = P.FAULT_WATCHDOG | P.FAULT_LINK  # acknowledged (~acknowledge) before a driving mode
 
 
 class PlcClientNode:
@@ -90,6 +94,7 @@ class PlcClientNode:
                                               P.SOURCE_MANUAL, queue_size=10)}
         rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
         rospy.Service("~set_mode", SetMode, self._srv_set_mode)
+        rospy.Service("~acknowledge", Trigger, self._srv_acknowledge)
         self.diag = diagnostics.updater()
         self.diag.setHardwareID(f"PLC {self.p.host}:{self.p.port}")
         self.diag.add("PLC link", self._diagnose)
@@ -254,16 +259,16 @@ class PlcClientNode:
             msg = f"{P.mode_name(mode)} refused: interlock active ({text})"
             rospy.logwarn(msg)
             return False, msg, max(self.mode, 0)
-        event = threading.Event()
-        answer = []
-        sent = self.link.send(P.ModeRequest(mode), on_ack=lambda ack: (answer.append(ack), event.set()))
-        if sent is None:
-            return False, f"not connected to the PLC ({self.link.last_error})", max(self.mode, 0)
-        if not event.wait(self.p.mode_timeout):
-            return False, f"the PLC did not answer within {self.p.mode_timeout} s", max(self.mode, 0)
-        ack = answer[0]
+        ack, error = self._ask(P.ModeRequest(mode))
+        if ack is None:
+            return False, error, max(self.mode, 0)
         if ack.status != P.OK:
             msg = f"PLC refused {P.mode_name(mode)} in {P.mode_name(ack.mode)}: {P.STATUS_NAMES.get(ack.status)}"
+            if ack.status == P.NOT_ACKNOWLEDGED:
+                msg += f" ({P.fault_names(self.faults & LATCHED)}): once the vehicle stands, call " \
+                       f"{rospy.resolve_name('~acknowledge')}"
+            elif ack.status == P.NOT_AT_STANDSTILL:
+                msg += " (the wheel and the PLC's accelerometer at rest for its hold time): try again once it stands"
             rospy.logwarn(msg)
             return False, msg, ack.mode
         # The acknowledgement is the PLC's word: forward the new mode's source from now,
@@ -272,6 +277,32 @@ class PlcClientNode:
         self.mode = ack.mode
         rospy.loginfo("PLC mode %s", P.mode_name(ack.mode))
         return True, f"mode {P.mode_name(ack.mode)}", ack.mode
+
+    def _ask(self, msg: P.Message):
+        """Send ``msg`` and wait for its ACK: (ack, "") or (None, why not)."""
+        event = threading.Event()
+        answer = []
+        sent = self.link.send(msg, on_ack=lambda ack: (answer.append(ack), event.set()))
+        if sent is None:
+            return None, f"not connected to the PLC ({self.link.last_error})"
+        if not event.wait(self.p.mode_timeout):
+            return None, f"the PLC did not answer within {self.p.mode_timeout} s"
+        return answer[0], ""
+
+    def _srv_acknowledge(self, _req) -> TriggerResponse:
+        """The operator's reset after a stop for a fault (WATCHDOG, LINK): the PLC takes it at a
+        verified standstill only; a driving mode can be requested again after it."""
+        latched = self.faults & LATCHED
+        ack, error = self._ask(P.Reset(LATCHED))
+        if ack is None:
+            return TriggerResponse(False, error)
+        if ack.status != P.OK:
+            msg = f"PLC refused to acknowledge {P.fault_names(latched)}: {P.STATUS_NAMES.get(ack.status)}"
+            rospy.logwarn(msg)
+            return TriggerResponse(False, msg)
+        self.faults &= ~LATCHED
+        rospy.loginfo("PLC faults acknowledged (%s)", P.fault_names(latched))
+        return TriggerResponse(True, f"acknowledged {P.fault_names(latched)}; mode {P.mode_name(ack.mode)}")
 
     def _srv_set_mode(self, req) -> SetModeResponse:
         if req.mode not in P.MODE_NAMES:

@@ -91,7 +91,7 @@ from ..actors import load_actors
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import LoopHold, Pacer, StaleSlowdown
-from ..plc_emulator import DRIVING, PlcServer, listening_exposure
+from ..plc_emulator import DRIVING, EventThrottle, PlcServer, listening_exposure
 from ..script import load_script
 from ..simulator import SimParams, Simulator
 
@@ -196,6 +196,7 @@ class SimNode:
         except OSError as exc:
             fatal(str(exc))
         rospy.loginfo("emulated PLC listening on %s:%d", *self.server.address)
+        self.event_throttle = EventThrottle()  # PLC events: a few lines a second per kind, whatever arrives
         exposure = listening_exposure(self.server.address[0])
         if exposure:
             rospy.logwarn("the emulated PLC listens on %s (plc.host %s): %s; only the key stands between it and "
@@ -436,9 +437,13 @@ class SimNode:
             if time.monotonic() >= deadline:
                 return
 
+    WARN_EVENTS = ("stop", "refused", "clamped")
+
     def _drain_plc_events(self) -> None:
-        for ev in self.sim.plc.pop_events():
-            (rospy.logwarn if ("watchdog" in ev or "clamped" in ev or "refused" in ev) else rospy.loginfo)("PLC: %s", ev)
+        for kind, text in self.sim.plc.pop_events():
+            line = self.event_throttle.admit(kind, text)
+            if line is not None:
+                (rospy.logwarn if kind in self.WARN_EVENTS else rospy.loginfo)("PLC: %s", line)
 
     def _step_once(self) -> None:
         with self.lock:
