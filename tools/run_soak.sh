@@ -21,11 +21,22 @@ rm -rf "$results"
 rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" reentry_trips:="${SOAK_REENTRY_TRIPS:-10}" results:="$tmp" time_limit:=3600 > "$log" 2>&1
 grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"
 ok=$?
+# The PLC contract's second pass, long form: re-entry while sliding, valid-frame floods,
+# a stranger holding the connection slots while the PLCClient's link drops
+plc_log="$ROOT/.setup/test-logs/soak_plc_contract.log"
+plc_tmp="$tmp.plc"
+printf '[soak] PLC contract: %s trips, %s link drops with a stranger holding the slots (log: %s)\n' \
+  "${SOAK_TRIPS:-10}" "${SOAK_DROPS:-50}" "$plc_log"
+rostest --results-base-dir "$results/plc_contract" quadrivio plc_contract.test trips:="${SOAK_TRIPS:-10}" \
+  drops:="${SOAK_DROPS:-50}" flood_s:=10 results:="$plc_tmp" > "$plc_log" 2>&1
+if ! grep -q "RESULT: SUCCESS" "$plc_log" || grep -q "TESTS: 0" "$plc_log"; then ok=1; fi
 if [ -s "$tmp" ]; then
   python3 - "$tmp" "$out" "$(( $(date +%s) - start ))" "$ok" <<'PY'
 import json, os, platform, sys
 tmp, out, seconds, ok = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "0"
 r = json.load(open(tmp))
+if os.path.exists(tmp + ".plc"):
+    r["plc_contract"] = json.load(open(tmp + ".plc"))
 r.update({"passed": ok, "wall_s": seconds, "machine": f"{platform.node()} {os.cpu_count()} cores"})
 json.dump(r, open(tmp, "w"), indent=1)
 os.replace(tmp, out)
@@ -35,6 +46,13 @@ print(f"[soak] stranger connections {st.get('connections')} refused {st.get('ref
       f"/clock min {r.get('stranger_clock_min_ratio')} of its rate")
 print(f"[soak] session fuzz {sf.get('chunks')} chunks in {sf.get('wall_s', float('nan')):.2f} s, modes seen "
       f"{sf.get('modes_seen')}; /clock min {r.get('session_fuzz_clock_min_ratio')} of its rate")
+pc = r.get("plc_contract", {})
+lo = pc.get("lockout", {})
+print(f"[soak] PLC contract: re-entry {len(pc.get('reentry', []))} trips, granted at most "
+      f"{max((x['speed_when_granted_mps'] or 0 for x in pc.get('reentry', [])), default=None)} m/s; "
+      f"link back within 1 s in {lo.get('within_1s')} of {lo.get('drops')} drops (worst {lo.get('worst_s')} s); "
+      f"floods: " + ", ".join(f"{k} /clock {v['clock_min_ratio']} {v['log_lines_per_s']:.1f} lines/s"
+                              for k, v in pc.get("flood", {}).items()))
 re = r.get("reentry", [])
 print(f"[soak] re-entry: {len(re)} trips, {sum(x['requests'] for x in re)} requests, "
       f"{sum(len(x['granted_while_moving']) for x in re)} granted while the body moved")
@@ -43,7 +61,7 @@ print(f"[soak] frozen client: standstill {r.get('frozen_client', {}).get('stands
       f"{r.get('reset_loc_median_m')} m")
 PY
 fi
-rm -f "$tmp"
+rm -f "$tmp" "$tmp.plc"
 if [ "$ok" -ne 0 ]; then
   python3 tools/junit_failures.py "$results" | sed 's/^/    /'
   echo "[soak] FAILED (log: $log)"
