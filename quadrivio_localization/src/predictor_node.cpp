@@ -1,8 +1,13 @@
 // predictor: the localization's estimate carried forward to "now" at 50 Hz.
 //
 // Parameters (private): ~rate (Hz, 50), ~horizon (s, 0: predict to now; more: beyond
-// now, to cover the control loop's own delay), ~max_age (s, 1.0: stop predicting from an
-// estimate older than this), ~max_future (s, 0.5: inputs stamped further ahead of the
+// now, to cover the control loop's own delay), ~max_dead_reckoning (m, 0.5) and
+// ~estimate_age_floor (s, 0.15): stop predicting once the estimate is older than the floor
+// and the vehicle has driven more than ~max_dead_reckoning on odometry alone since it (a
+// dead or stalled localization: the distance driven on a stale estimate is a safety budget,
+// so the age allowed falls with the speed; the floor is the estimate's normal age, 20 Hz
+// keyframes and their delivery), ~max_age (s, 1.0: and whatever the speed, from an estimate
+// older than this), ~max_future (s, 0.5: inputs stamped further ahead of the
 // clock are dropped, and so is an estimate newer than that: after the clock moved back),
 // ~map_frame (map), ~base_frame (base_link), ~realtime_priority (0: on the wall clock the 50 Hz beat
 // runs on a thread of its own; above 0 at that SCHED_FIFO priority, when the system allows it; in sim time it is a
@@ -62,16 +67,20 @@ public:
     pnh_.param("rate", rate_, 50.0);
     pnh_.param("horizon", horizon_, 0.0);
     pnh_.param("max_age", max_age_, 1.0);
+    pnh_.param("max_dead_reckoning", max_dead_reckoning_, 0.5);
+    pnh_.param("estimate_age_floor", estimate_age_floor_, 0.15);
     pnh_.param("max_future", max_future_, 0.5);
     pnh_.param<std::string>("map_frame", map_frame_, "map");
     pnh_.param<std::string>("base_frame", base_frame_, "base_link");
     pnh_.param("realtime_priority", realtime_priority_, 0);
     if (!(rate_ > 0.0 && rate_ <= 1000.0) || !(horizon_ >= 0.0 && horizon_ <= 2.0) || !(max_age_ > 0.0) ||
-        !(max_future_ >= 0.0 && max_future_ <= 60.0) || realtime_priority_ < 0 || realtime_priority_ > 99)
+        !(max_future_ >= 0.0 && max_future_ <= 60.0) || realtime_priority_ < 0 || realtime_priority_ > 99 ||
+        !(max_dead_reckoning_ > 0.0) || !(estimate_age_floor_ >= 0.0 && estimate_age_floor_ <= max_age_))
     {
       ROS_FATAL("predictor: bad parameter: ~rate = %g (0, 1000] Hz, ~horizon = %g [0, 2] s, ~max_age = %g > 0 s, "
-                "~max_future = %g [0, 60] s, ~realtime_priority = %d [0, 99]", rate_, horizon_, max_age_, max_future_,
-                realtime_priority_);
+                "~max_future = %g [0, 60] s, ~realtime_priority = %d [0, 99], ~max_dead_reckoning = %g > 0 m, "
+                "~estimate_age_floor = %g [0, ~max_age] s", rate_, horizon_, max_age_, max_future_,
+                realtime_priority_, max_dead_reckoning_, estimate_age_floor_);
       ros::shutdown();
       return;
     }
@@ -236,7 +245,15 @@ private:
         return;
       }
       const double target = now.toSec() + horizon_;
-      const ql::Pose2 p = core_->predict(target);
+      double travelled = 0.0;
+      const ql::Pose2 p = core_->predict(target, &travelled);
+      if (age > estimate_age_floor_ && travelled > max_dead_reckoning_)
+      {
+        ROS_WARN_THROTTLE(5.0, "predictor: the localization's estimate is %.2f s old and the vehicle has driven "
+                          "%.2f m on odometry alone since (> ~max_dead_reckoning %.2f m): not predicting",
+                          age, travelled, max_dead_reckoning_);
+        return;
+      }
       out.header.stamp = ros::Time(target);
       out.header.frame_id = map_frame_;
       out.child_frame_id = base_frame_;
@@ -267,6 +284,7 @@ private:
   std::unique_ptr<ql::Predictor> core_;
   std::mutex mutex_;
   double rate_ = 50.0, horizon_ = 0.0, max_age_ = 1.0, max_future_ = 0.5, z_ = 0.0;
+  double max_dead_reckoning_ = 0.5, estimate_age_floor_ = 0.15;
   double wheelbase_ = 1.0, ratio_ = 1.0, max_delta_ = 1.0;
   ros::Time last_now_;
   unsigned long rejected_ = 0;

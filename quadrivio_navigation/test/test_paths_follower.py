@@ -67,7 +67,7 @@ def test_follower_stops_when_off_path_or_blind():
     pp = PurePursuit(FollowerParams(), path, v)
     assert pp.update(1.0, 0.0, 0.0, 0.0).status == FOLLOWING
     c = pp.update(1.0, 0.0, 0.0, 0.0, pose_age=2.0)
-    assert c.status == ABORTED and c.speed == 0.0 and c.brake > 0 and "old" in c.reason
+    assert c.status == FOLLOWING and c.speed == 0.0 and c.brake > 0 and "waiting for a fresh pose" in c.reason
     pp = PurePursuit(FollowerParams(), path, v)
     c = pp.update(1.0, 10.0, 0.0, 1.0)
     assert c.status == ABORTED and "cross-track" in c.reason
@@ -270,3 +270,28 @@ def test_follower_aborts_when_blocked():
     pp, log = run_route(route, FollowerParams(stall_time=3.0), t_max=60.0, obstacles=[wall])
     assert pp.status == ABORTED and "no progress" in pp.reason, pp.reason
     assert log[-1, 1] < 10.0
+
+
+def test_a_stale_pose_stops_the_vehicle_within_its_distance_budget_and_a_fresh_one_drives_on():
+    """A dead localization: the pose's age limit falls with the speed (pose_budget / v), the
+    vehicle brakes where it is, and drives on from rest once a fresh pose comes (it used to
+    abort after 0.5 s whatever the speed, and stay aborted)."""
+    v = load_vehicle()
+    path = make_path(figure_eight(FigureEightParams()), SpeedProfileParams(speed=3.0))
+    p = FollowerParams()
+    pp = PurePursuit(p, path, v)
+    pp.set_limits(1.0, 1.0)
+    x0, y0 = float(path.x[50]), float(path.y[50])
+    th = float(path.theta[50])
+    assert pp.pose_age_limit(3.0) == pytest.approx(max(p.min_pose_age, p.pose_budget / 3.0))
+    assert pp.pose_age_limit(0.0) == p.max_pose_age and pp.pose_age_limit(0.2) == p.max_pose_age
+    c = pp.update(x0, y0, th, 3.0, pose_age=0.02, t=0.0)
+    assert c.status == FOLLOWING and c.brake == 0.0
+    c = pp.update(x0, y0, th, 3.0, pose_age=0.09, t=0.02)  # 0.27 m driven on it at 3 m/s: over the budget
+    assert c.speed == 0.0 and c.brake >= p.stop_brake and c.status == FOLLOWING and pp.waiting_pose
+    for k in range(1000):  # 20 s standing on a stale pose: no stall, no abort
+        c = pp.update(x0, y0, th, 0.0, pose_age=0.1 + 0.02 * k, t=0.04 + 0.02 * k)
+    assert c.status == FOLLOWING and c.speed == 0.0
+    c = pp.update(x0, y0, th, 0.0, pose_age=0.01, t=0.04 + 0.02 * 1000)  # the localization is back
+    assert c.status == FOLLOWING and c.brake == 0.0 and not pp.waiting_pose
+    assert 0.0 < c.speed <= 0.02 * 1.0 + 1e-9  # from rest, up the profile's ramp

@@ -90,11 +90,13 @@ public:
     return out;
   }
 
-  // The estimate carried from its time to `target`.
-  Pose2 predict(double target) const
+  // The estimate carried from its time to `target`; `travelled` (if given): the distance
+  // driven on odometry alone to get there [m], what a stale estimate costs.
+  Pose2 predict(double target, double* travelled = nullptr) const
   {
     Pose2 p = est_;
     double t = est_t_;
+    if (travelled) *travelled = 0.0;
     if (target <= t || readings_.empty()) return p;
     // Reading in force at t: the newest one not after t (or the first one).
     size_t i = 0;
@@ -104,6 +106,7 @@ public:
       // Hold reading i until the next one (or the target), then move on.
       const double next = (i + 1 < readings_.size()) ? std::max(t, std::min(target, readings_[i + 1].t)) : target;
       p = step(p, readings_[i].speed, readings_[i].handlebar, next - t);
+      if (travelled) *travelled += std::fabs(cal_.speed_scale * readings_[i].speed) * (next - t);
       t = next;
       if (i + 1 < readings_.size() && t >= readings_[i + 1].t) ++i;
     }

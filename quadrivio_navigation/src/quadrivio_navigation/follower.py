@@ -21,9 +21,11 @@ At a cusp, once stopped (``|v| < stop_speed``) within ``cusp_tolerance`` of it, 
 segment starts; so it does when the vehicle stands held short of the cusp (by the
 obstacle guard) within that distance. At the route's end, once stopped, the follower is DONE when it is within
 ``goal_tolerance`` and ``heading_tolerance`` of the goal pose, and ABORTED (missed the
-goal, with the errors) otherwise. It aborts at once (full stop) when the cross-track
-error exceeds ``max_cross_track`` or the pose is older than ``max_pose_age``: a stale pose
-must not steer the vehicle; and when, told to move, it has got less than ``stall_distance``
+goal, with the errors) otherwise. A stale pose must not steer the vehicle: one older than
+``pose_budget`` over the speed (within [``min_pose_age``, ``max_pose_age``]: 0.08 s at
+3 m/s) stops it with the brake, still FOLLOWING, until a fresh pose comes, and it drives
+on from rest. It aborts at once (full stop) when the cross-track error exceeds
+``max_cross_track``, and when, told to move, it has got less than ``stall_distance``
 further along the route in ``stall_time`` (blocked by something the map does not show,
 stuck). :meth:`PurePursuit.stop` ends a route with a controlled stop.
 
@@ -64,7 +66,14 @@ class FollowerParams:
     stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
     cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m", doc="change direction within this of a cusp")
     max_cross_track: float = param(4.0, lo=0.1, hi=100.0, unit="m", doc="abort beyond this cross-track error")
-    max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="abort when the pose is older than this")
+    pose_budget: float = param(0.25, lo=0.01, hi=10.0, unit="m",
+                               doc="how far the vehicle may drive on the last pose before it is stale: the pose's "
+                                   "age limit is this over the speed (a safety budget, see max_pose_age)")
+    min_pose_age: float = param(0.08, lo=0.01, hi=10.0, unit="s",
+                                doc="the age limit is never below this (4 periods of the 50 Hz predictor)")
+    max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s",
+                                doc="nor above this (standing, slow): a pose older than the limit stops the vehicle "
+                                    "until a fresh one comes, then it drives on")
     stall_time: float = param(10.0, lo=0.5, hi=600.0, unit="s",
                               doc="abort when the vehicle, told to move, gets less than stall_distance further "
                                   "along the path in this long (blocked, stuck)")
@@ -188,6 +197,7 @@ class PurePursuit:
         self.sp_speed, self.sp_handlebar = last_speed, last_handlebar
         self.accel = self.decel = self.stop_decel = math.inf
         self.stall_ref: Optional[Tuple[float, float]] = None  # (time, route progress [m]) of the last progress
+        self.waiting_pose = ""  # why the vehicle stands waiting for a fresh pose ("": it does not)
 
     @property
     def path(self) -> Path:
@@ -233,8 +243,11 @@ class PurePursuit:
         along the path is no stall."""
         if self.status in (DONE, ABORTED):
             return self._done_command()
-        if pose_age > self.p.max_pose_age:
-            return self.abort(f"pose {pose_age:.2f} s old (> {self.p.max_pose_age} s)")
+        v_ref = max(abs(speed), abs(self.sp_speed))
+        limit = self.pose_age_limit(v_ref)
+        if pose_age > limit:
+            return self._wait_for_pose(pose_age, limit, v_ref, t)
+        self.waiting_pose = ""
         seg = self.route.segments[self.k]
         path, d = seg.path, seg.direction
         i = self.tracker.nearest(x, y)
@@ -295,6 +308,26 @@ class PurePursuit:
                 return self.abort(stalled, xte)
         return Command(v_sp, h, 0.0, FOLLOWING, xte, self._progress(), self._remaining(),
                        self.reason if self.stopping else "", self.k, d)
+
+    def pose_age_limit(self, speed: float) -> float:
+        """How old the pose may be at ``speed`` [m/s]: the vehicle drives at most
+        ``pose_budget`` on it, within [min_pose_age, max_pose_age]."""
+        if speed <= 1e-6:
+            return self.p.max_pose_age
+        return max(self.p.min_pose_age, min(self.p.max_pose_age, self.p.pose_budget / speed))
+
+    def _wait_for_pose(self, age: float, limit: float, speed: float, t: Optional[float]) -> Command:
+        """A stale pose (a dead or stalled localization): brake and wait on the route; once a
+        fresh pose comes, drive on from rest (the speed setpoint ramps up from 0 again)."""
+        self.waiting_pose = (f"waiting for a fresh pose: {age:.2f} s old (> {limit:.2f} s: {self.p.pose_budget} m "
+                             f"at {speed:.1f} m/s)")
+        self.sp_speed = 0.0
+        if t is not None:
+            self.t_last = t  # the speed setpoint ramps up from 0 from now
+        self.stall_ref = None  # standing for the pose is no stall
+        seg = self.route.segments[self.k]
+        return Command(0.0, self.sp_handlebar, self.p.stop_brake, FOLLOWING, 0.0, self._progress(),
+                       self._remaining(), self.waiting_pose, self.k, seg.direction)
 
     def _stalled(self, t: float, v_sp: float) -> str:
         """A reason to abort when the vehicle, told to move, does not get along the route."""

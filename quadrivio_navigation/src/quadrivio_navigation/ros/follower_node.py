@@ -57,6 +57,7 @@ class FollowerNode:
         self.guard = input_guard()
         self.pose: Optional[Odometry] = None
         self.last_status = None
+        self.last_waiting = False
         self.pub_sp = direct_publisher("vehicle/setpoint/request", Setpoint, queue_size=10)
         self.pub_status = direct_publisher("follower/status", FollowerStatus, queue_size=10)
         rospy.Subscriber("planner/path", PathMsg, self._on_path, queue_size=1)
@@ -181,6 +182,13 @@ class FollowerNode:
             (rospy.logwarn if c.status == ABORTED else rospy.loginfo)(
                 "follower %s%s", STATUS_NAMES[c.status], f": {c.reason}" if c.reason else "")
             self.last_status = c.status
+        waiting = bool(pp.waiting_pose)
+        if waiting != self.last_waiting:
+            if waiting:
+                rospy.logwarn("follower: stopped, %s", pp.waiting_pose)
+            else:
+                rospy.loginfo("follower: a fresh pose again: driving on")
+            self.last_waiting = waiting
 
 
 def main() -> None:
