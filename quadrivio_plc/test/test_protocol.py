@@ -225,3 +225,26 @@ def test_key_warnings_name_a_readable_file_and_a_weak_key(tmp_path):
     pattern.write_text("abababababababab")
     pattern.chmod(0o600)
     assert ["weak key" in w for w in P.key_warnings(str(pattern), P.load_key(str(pattern)))] == [True]
+
+
+def _msg_constants(name):
+    """NAME=value constants of a .msg file of this package, read from its text."""
+    import os
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "msg", name)
+    out = {}
+    for line in open(path):
+        line = line.split("#", 1)[0].strip()
+        if "=" in line:
+            decl, value = line.split("=", 1)
+            out[decl.split()[-1]] = int(value)
+    return out
+
+
+def test_protocol_constants_are_the_messages():
+    """The wire's modes and fault bits are VehicleState's: a change on one side only would make
+    /vehicle/state say another mode than the PLC is in."""
+    c = _msg_constants("VehicleState.msg")
+    modes = {k: v for k, v in c.items() if k.startswith("MODE_")}
+    faults = {k: v for k, v in c.items() if k.startswith("FAULT_")}
+    assert modes == {f"MODE_{name}": mode for mode, name in P.MODE_NAMES.items()}
+    assert faults == {f"FAULT_{name}": bit for bit, name in P.FAULT_NAMES.items()}

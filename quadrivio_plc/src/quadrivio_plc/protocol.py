@@ -106,7 +106,8 @@ class ModeRequest:
 
 @dataclass(frozen=True)
 class Heartbeat:
-    """Client -> PLC, type 0x03: keeps the watchdog fed when there is nothing else to send."""
+    """Client -> PLC, type 0x03: keeps the session alive when there is nothing else to send (SAFE,
+    HALT). It never feeds the watchdog: only fresh setpoints of the mode's source do (PROTOCOL.md)."""
     TYPE = 0x03
     FMT = struct.Struct("<")
 
