@@ -54,3 +54,22 @@ def test_a_documented_command_resolves(tool, pkg, target, doc):
         os.path.join(where, "CMakeLists.txt")) else ""
     built = re.search(rf"add_executable\(\s*{re.escape(target)}\b", cmake) is not None
     assert ok or built, f"{doc}: `rosrun {pkg} {target}`: no executable {target} in {pkg}"
+
+
+LINK = re.compile(r"\]\(([^)#\s]+)(?:#[^)]*)?\)")
+
+
+def links():
+    found = []
+    for doc in documents():
+        for target in LINK.findall(open(doc, encoding="utf-8").read()):
+            if not re.match(r"[a-z]+:", target):
+                found.append((os.path.relpath(doc, ROOT), target))
+    return sorted(set(found))
+
+
+@pytest.mark.parametrize("doc, target", links())
+def test_a_documented_link_resolves(doc, target):
+    path = os.path.normpath(os.path.join(ROOT, os.path.dirname(doc), target))
+    assert os.path.exists(path), f"{doc} links {target}, which does not exist"
+    assert path.startswith(ROOT + os.sep), f"{doc} links {target}, outside the repository (a clone has no such file)"

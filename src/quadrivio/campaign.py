@@ -4,8 +4,10 @@ Each run is either *offline* (default: :mod:`quadrivio.offline`, the simulator c
 sensor models and the smoother in one process, no ROS master, as fast as the CPU goes) or
 *closed loop* (``--closed-loop``: ``experiment`` per run, the whole stack on its own ROS
 master). Runs are tasks on Dask distributed: a local cluster of ``--workers`` processes
-by default, or the scheduler at ``--scheduler ADDRESS`` (``dask-scheduler`` on one machine,
-``dask-worker ADDRESS`` on each of the others, all with this workspace sourced).
+by default, or the scheduler at ``--scheduler ADDRESS`` (``python3 -m distributed.cli.dask_scheduler``
+on one machine, ``python3 -m distributed.cli.dask_worker ADDRESS`` on each of the others, all with
+env.sh sourced: Debian's ``/usr/bin/dask-worker`` runs the system Python, without gtsam; see
+docs/campaigns.md).
 
 Written to ``DIR`` (each file complete or absent: written aside and renamed):
 
