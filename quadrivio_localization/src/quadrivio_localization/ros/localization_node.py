@@ -58,16 +58,16 @@ class NodeParams:
 class LocalizationNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: LocalizerParams = with_scenario(node_params(LocalizerParams, rest), "localization")
         self.vehicle, self.site = vehicle_params(), site_params()
         self.lock = threading.Lock()  # the smoother is fed from subscriber threads, updated on the timer
-        self.guard = input_guard(self.np.max_future)
+        self.guard = input_guard(self.node_params.max_future)
         self.resets = 0
         self._fresh_state()
         self.pub_odom = direct_publisher("localization/odom", Odometry, queue_size=20)
         self.pub_cal = rospy.Publisher("localization/calibration", Calibration, queue_size=5, latch=True)
-        self.tf = tf2_ros.TransformBroadcaster() if self.np.publish_tf else None
+        self.tf = tf2_ros.TransformBroadcaster() if self.node_params.publish_tf else None
         self.update_ms = []
         on_clock_jump(self._on_clock_jump)
         rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=100)
@@ -110,7 +110,7 @@ class LocalizationNode:
         if self.tf is not None and math.isfinite(x):
             tr = TransformStamped()
             tr.header.stamp = m.header.stamp
-            tr.header.frame_id, tr.child_frame_id = self.np.odom_frame, self.np.base_frame
+            tr.header.frame_id, tr.child_frame_id = self.node_params.odom_frame, self.node_params.base_frame
             tr.transform.translation.x, tr.transform.translation.y = x, y
             q = tr.transform.rotation
             q.x, q.y, q.z, q.w = quaternion_from_yaw(th)
@@ -149,7 +149,7 @@ class LocalizationNode:
                 rospy.logerr_throttle(5.0, "smoother update failed (%s); restarting from the next fix", exc)
                 self.loc = Localizer(self.p, self.vehicle, self.site)
                 return
-            sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.np.calibration_period else None
+            sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.node_params.calibration_period else None
             events = self.loc.pop_events()
         for e in events:
             rospy.logwarn("localization: %s", e)
@@ -164,7 +164,7 @@ class LocalizationNode:
                              est.calibration["steering_gain"])
             odom = self.dr.pose_at(est.stamp) if self.tf is not None else None
         stamp = rospy.Time.from_sec(est.stamp)
-        m = M.odometry(est, self.np.map_frame, self.np.base_frame)
+        m = M.odometry(est, self.node_params.map_frame, self.node_params.base_frame)
         self.pub_odom.publish(m)
         if odom is not None:
             self._publish_map_to_odom(est, odom, stamp)
@@ -179,7 +179,7 @@ class LocalizationNode:
         c, s = math.cos(th), math.sin(th)
         tr = TransformStamped()
         tr.header.stamp = stamp
-        tr.header.frame_id, tr.child_frame_id = self.np.map_frame, self.np.odom_frame
+        tr.header.frame_id, tr.child_frame_id = self.node_params.map_frame, self.node_params.odom_frame
         tr.transform.translation.x = est.x - (c * ox - s * oy)
         tr.transform.translation.y = est.y - (s * ox + c * oy)
         q = tr.transform.rotation

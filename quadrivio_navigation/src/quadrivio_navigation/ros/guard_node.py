@@ -94,11 +94,11 @@ def load_zone_file(path: str):
 class GuardNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         try:
             p: GuardParams = with_scenario(node_params(GuardParams, rest), "guard")
-            if self.np.zone_file and not p.zone:
-                p = replace_nested(p, {"zone": [list(v) for v in load_zone_file(self.np.zone_file)]}, "~zone_file")
+            if self.node_params.zone_file and not p.zone:
+                p = replace_nested(p, {"zone": [list(v) for v in load_zone_file(self.node_params.zone_file)]}, "~zone_file")
         except ConfigError as exc:
             fatal(f"bad guard parameter: {exc}")
         self.p = p
@@ -107,13 +107,13 @@ class GuardNode:
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
         self.attitude = Attitude(p.slope_tau)
         self.heights = scenario_terrain("obstacle guard (returns on the terrain are the ground)",
-                                        self.np.terrain_from_scenario)
+                                        self.node_params.terrain_from_scenario)
         self.pose = None  # (stamp, x, y, yaw) from localization/predicted
         self.ground_returns = 0
         self.lock = threading.Lock()
         self.inputs = input_guard(max_future=p.max_future)
         self.request = None  # (received at, speed, handlebar, brake)
-        self.frames = StaticFrames(self.np.base_frame)
+        self.frames = StaticFrames(self.node_params.base_frame)
         self.last_action = None
         self.pub_sp = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         self.pub_status = direct_publisher("guard/status", GuardStatus, queue_size=20)
@@ -143,7 +143,7 @@ class GuardNode:
         z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
         t_b = np.array([mount[0], mount[1], mount[4]])
         ground = dem_ground(self.heights, np.array([x, y, z0]) + R_map @ t_b, R_map @ mount[3],
-                            self.np.ground_tolerance)
+                            self.node_params.ground_tolerance)
         r = np.asarray(m.ranges, dtype=float)
         bearings = m.angle_min + m.angle_increment * np.arange(len(r))
         hit = np.isfinite(r) & (r >= m.range_min) & (r <= min(m.range_max, MAX_RANGE))
@@ -220,7 +220,7 @@ class GuardNode:
             return
         mount = self._mount(s.frame)
         if mount is None:
-            points, error = None, f"no transform {self.np.base_frame} <- {s.frame} on /tf_static"
+            points, error = None, f"no transform {self.node_params.base_frame} <- {s.frame} on /tf_static"
         else:
             ranges = m.ranges
             ground = self._ground(m, mount, now)
@@ -233,7 +233,7 @@ class GuardNode:
         with self.lock:
             self.core.on_scan(what, stamp, points, error)
             req = self.request
-            fresh = req is not None and now - req[0] <= self.np.request_timeout
+            fresh = req is not None and now - req[0] <= self.node_params.request_timeout
             speed, handlebar, brake = (req[1], req[2], req[3]) if fresh else (0.0, 0.0, 0.0)
             d = self.core.decide(now, speed, handlebar)
             stop_now = fresh and d.action in (STOP, FAULT) and self.last_action not in (STOP, FAULT)
@@ -270,7 +270,7 @@ class GuardNode:
         core = self.core
         m = GuardStatus()
         m.header.stamp = rospy.Time.now()
-        m.header.frame_id = self.np.base_frame
+        m.header.frame_id = self.node_params.base_frame
         m.action, m.field, m.reason = d.action, d.field, d.reason
         m.speed_limit = d.limit
         m.requested_speed, m.commanded_speed = requested, commanded

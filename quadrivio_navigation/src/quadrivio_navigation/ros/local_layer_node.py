@@ -61,7 +61,7 @@ class NodeParams:
 class LocalLayerNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: LocalLayerParams = with_scenario(node_params(LocalLayerParams, rest), "local_layer")
         self.vehicle = vehicle_params()
         self.layer = LocalLayer(self.p)
@@ -71,17 +71,17 @@ class LocalLayerNode:
         self.attitude = Attitude()  # roll, pitch (the vehicle's own acceleration out)
         self.update_ms = []  # recent update times [ms]
         self.heights = scenario_terrain("local obstacle layer (returns on the terrain are the ground)",
-                                        self.np.terrain_from_scenario)
-        self.frames = StaticFrames(self.np.base_frame)
+                                        self.node_params.terrain_from_scenario)
+        self.frames = StaticFrames(self.node_params.base_frame)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
         rospy.Subscriber("localization/predicted", Odometry, self._on_pose, queue_size=5)
         if self.heights is not None:
             rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
             rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
-        for s in self.np.scanners:
+        for s in self.node_params.scanners:
             rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
         self.pub = rospy.Publisher("local_obstacles", OccupancyGrid, queue_size=2)
-        guarded_timer(1.0 / self.np.publish_rate, self._publish, "local obstacle grid")
+        guarded_timer(1.0 / self.node_params.publish_rate, self._publish, "local obstacle grid")
         self.diag = diagnostics.updater()
         self.diag.setHardwareID("local obstacle layer")
         self.diag.add("local obstacle layer", self._diagnose)
@@ -126,11 +126,11 @@ class LocalLayerNode:
             self.inputs.reject(s.topic, "malformed scan", str(exc))
             return
         pose, mount = self.pose, self.frames.mount(s.frame)
-        if pose is None or now - pose[0] > self.np.max_pose_age:
+        if pose is None or now - pose[0] > self.node_params.max_pose_age:
             self.inputs.reject(s.topic, "no fresh pose", "localization/predicted")
             return
         if mount is None:
-            self.inputs.reject(s.topic, "no transform", f"{self.np.base_frame} <- {s.frame} on /tf_static")
+            self.inputs.reject(s.topic, "no transform", f"{self.node_params.base_frame} <- {s.frame} on /tf_static")
             return
         t0 = time.perf_counter()
         _, x, y, yaw = pose
@@ -164,7 +164,7 @@ class LocalLayerNode:
             origin = self.layer.origin
         m = OccupancyGrid()
         m.header.stamp = rospy.Time.now()
-        m.header.frame_id = self.np.frame_id
+        m.header.frame_id = self.node_params.frame_id
         m.info.map_load_time = m.header.stamp
         m.info.resolution = self.p.resolution
         m.info.width = m.info.height = self.layer.n

@@ -95,7 +95,7 @@ def grid_from_msg(m: OccupancyGrid) -> Grid:
 class PlannerNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: PlannerParams = with_scenario(node_params(PlannerParams, rest), "planner")
         self.vehicle = vehicle_params()
         self.heights, self.rollover = self._terrain()
@@ -108,10 +108,10 @@ class PlannerNode:
         self.status = PlannerStatus()
         self.pub_path: Optional[rospy.Publisher] = None  # advertised at the first path (see _publish_path)
         self.pub_status = rospy.Publisher("planner/status", PlannerStatus, queue_size=5, latch=True)
-        self._set_status(PlannerStatus.IDLE, "waiting for a map" if not self.np.map_file else "loading the map")
-        if self.np.map_file:
+        self._set_status(PlannerStatus.IDLE, "waiting for a map" if not self.node_params.map_file else "loading the map")
+        if self.node_params.map_file:
             try:
-                grid = load_map(self.np.map_file)
+                grid = load_map(self.node_params.map_file)
             except MapError as exc:
                 fatal(f"cannot load the map: {exc}")
             self.jobs.put(("map", grid))
@@ -132,13 +132,13 @@ class PlannerNode:
         self.replans = 0
         self.block_why = ""  # what blocked the path (BLOCKED retries with it)
         self.replan_time = self.p.budget + 1.5  # [s] wall, a replan's (building the map's planner included)
-        if self.np.check_rate > 0.0:
+        if self.node_params.check_rate > 0.0:
             rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
             rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
             from ..msg import GuardStatus
 
             rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
-            guarded_timer(1.0 / self.np.check_rate, self._check, "path check")
+            guarded_timer(1.0 / self.node_params.check_rate, self._check, "path check")
         rospy.Service("~plan", PlanPath, self._on_plan_service)
         self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
         self.worker.start()
@@ -150,7 +150,7 @@ class PlannerNode:
         """Heights of the scenario's simulated terrain (for slope cost), or None."""
         from ..rollover import RolloverParams
 
-        return scenario_terrain("planner (slope cost)", self.np.terrain_from_scenario), RolloverParams()
+        return scenario_terrain("planner (slope cost)", self.node_params.terrain_from_scenario), RolloverParams()
 
     def _on_map(self, m: OccupancyGrid) -> None:
         try:
@@ -194,16 +194,16 @@ class PlannerNode:
         if self.local is None or self.current is None or self.goal is None or self.planner is None:
             return
         if st == PlannerStatus.BLOCKED:
-            if rospy.get_time() - self.last_try >= self.np.retry:
+            if rospy.get_time() - self.last_try >= self.node_params.retry:
                 self.jobs.put(("replan", self.block_why))
             return
         if st != PlannerStatus.FOUND or self.path_poses is None:
             return
         why = blocked_reason(self.path_poses, self.current, self.local, self.planner.footprint,
-                             self.np.check_horizon, self.static_grid, self.known, self.np.known_tolerance)
+                             self.node_params.check_horizon, self.static_grid, self.known, self.node_params.known_tolerance)
         now = rospy.get_time()
-        if not why and self.held_since is not None and now - self.held_since >= self.np.held_replan and \
-                now - self.last_try >= self.np.retry:
+        if not why and self.held_since is not None and now - self.held_since >= self.node_params.held_replan and \
+                now - self.last_try >= self.node_params.retry:
             why = f"the obstacle guard has held the vehicle for {now - self.held_since:.0f} s"
         if why:
             self.jobs.put(("replan", why))
@@ -254,19 +254,19 @@ class PlannerNode:
         goal, problem = self._goal_pose(self.goal)
         if problem:
             return
-        merged = merge_local(self.static_grid, self.local, self.known, self.np.known_tolerance)
+        merged = merge_local(self.static_grid, self.local, self.known, self.node_params.known_tolerance)
         t = time.monotonic()
         planner = Planner(merged, self.vehicle, self.p, self.heights, self.rollover)
         occupied = planner.check_pose(goal, "goal")
         # A moving vehicle drives on while the planner works: plan from where it will be on
         # its current path by then (short of the blockage), and keep the path up to there
         prefix, start = self._replan_start(planner)
-        start_msg = pose_stamped(*start, self.np.frame_id, rospy.Time.now())
+        start_msg = pose_stamped(*start, self.node_params.frame_id, rospy.Time.now())
         if occupied:
             return self._blocked(f"{why}; and the goal is blocked: {occupied}", start_msg)
         rospy.logwarn("planner: %s: replanning from (%.2f, %.2f)", why, start[0], start[1])
         self._set_status(PlannerStatus.PLANNING, why, start=start_msg, goal=self.goal)
-        budget = self.np.replan_budget if not len(prefix) and abs(self.speed) < 0.2 else None
+        budget = self.node_params.replan_budget if not len(prefix) and abs(self.speed) < 0.2 else None
         r = planner.plan(start, goal, budget, cancelled=self.cancel.is_set)
         if self.cancel.is_set():
             return
@@ -285,7 +285,7 @@ class PlannerNode:
         self.blocked_since = None
         self.held_since = None
         poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
-        self._publish_path(path_msg(poses, self.np.frame_id, rospy.Time.now()))
+        self._publish_path(path_msg(poses, self.node_params.frame_id, rospy.Time.now()))
         self.path_poses = poses
         self._set_status(PlannerStatus.FOUND, f"replanned ({why})", start_msg, self.goal, r)
         rospy.loginfo("planner: replanned around the obstacle in %.2f s: %.1f m, %d cusp(s)",
@@ -327,7 +327,7 @@ class PlannerNode:
         if self.blocked_since is None:
             self.blocked_since = rospy.get_time()
             rospy.logwarn("planner: BLOCKED: %s (retrying every %.1f s; the vehicle stays stopped)", reason,
-                          self.np.retry)
+                          self.node_params.retry)
         self._set_status(PlannerStatus.BLOCKED, reason, start, self.goal, r)
 
     def _build(self, grid: Grid) -> None:
@@ -347,8 +347,8 @@ class PlannerNode:
 
     def _goal_pose(self, m: PoseStamped, what: str = "goal") -> Tuple[Optional[Tuple[float, float, float]], str]:
         frame = m.header.frame_id.lstrip("/")
-        if frame and frame != self.np.frame_id:
-            return None, f"{what} in frame '{m.header.frame_id}', expected '{self.np.frame_id}'"
+        if frame and frame != self.node_params.frame_id:
+            return None, f"{what} in frame '{m.header.frame_id}', expected '{self.node_params.frame_id}'"
         q = m.pose.orientation
         if not all(map(math.isfinite, (q.x, q.y, q.z, q.w))) or q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w < 1e-9:
             return None, f"{what} orientation is not a rotation"
@@ -368,7 +368,7 @@ class PlannerNode:
                                                        "(localization/odom)", goal=m)
         sp = self.start.pose.pose
         start = (sp.position.x, sp.position.y, yaw_of(sp.orientation))
-        start_msg = pose_stamped(*start, self.np.frame_id, self.start.header.stamp)
+        start_msg = pose_stamped(*start, self.node_params.frame_id, self.start.header.stamp)
         self._set_status(PlannerStatus.PLANNING, "", start=start_msg, goal=m)
         with self.lock:
             r = self.planner.plan(start, goal, cancelled=self.cancel.is_set)
@@ -376,7 +376,7 @@ class PlannerNode:
             return  # a newer goal is waiting
         if not r.ok:
             return self._fail(r.reason, m, start_msg, r)
-        self._publish_path(path_msg(r.poses, self.np.frame_id, rospy.Time.now()))
+        self._publish_path(path_msg(r.poses, self.node_params.frame_id, rospy.Time.now()))
         self.path_poses = r.poses
         self.blocked_since = None
         self._set_status(PlannerStatus.FOUND, "", start_msg, m, r)
@@ -399,7 +399,7 @@ class PlannerNode:
                     goal: Optional[PoseStamped] = None, r: Optional[PlanResult] = None) -> None:
         st = PlannerStatus()
         st.header.stamp = rospy.Time.now()
-        st.header.frame_id = self.np.frame_id
+        st.header.frame_id = self.node_params.frame_id
         st.state, st.reason = state, reason
         st.planner = self.p.planner
         if start is not None:
@@ -437,7 +437,7 @@ class PlannerNode:
             r = self.planner.plan(start, goal, req.budget or None, req.planner or None)
         out.success, out.message = r.ok, r.reason
         if r.ok:
-            out.path = path_msg(r.poses, self.np.frame_id, rospy.Time.now())
+            out.path = path_msg(r.poses, self.node_params.frame_id, rospy.Time.now())
             out.cost, out.length = r.cost, r.length
             out.time_to_first, out.planning_time = r.time_to_first, r.planning_time
         return out

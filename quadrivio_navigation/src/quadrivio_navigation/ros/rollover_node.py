@@ -41,7 +41,7 @@ class NodeParams:
 class RolloverNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: RolloverParams = node_params(RolloverParams, rest)
         vehicle = vehicle_params()
         self.ssf = vehicle.static_stability_factor
@@ -50,7 +50,7 @@ class RolloverNode:
         self.guard = input_guard()
         self.pub = direct_publisher("safety/rollover", RolloverRisk, queue_size=20)
         self.pub_interlock = None
-        if self.np.stop_on_trip:
+        if self.node_params.stop_on_trip:
             from quadrivio_plc.msg import Interlock
 
             self.pub_interlock = rospy.Publisher("safety/interlock", Interlock, queue_size=5, latch=True)
@@ -63,7 +63,7 @@ class RolloverNode:
         self.diag.add("roll-over risk", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=50)
-        if self.np.stop_on_trip:
+        if self.node_params.stop_on_trip:
             from quadrivio_plc.msg import VehicleState
 
             rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=5)
@@ -109,7 +109,7 @@ class RolloverNode:
             if self.pub_interlock is not None and TRIP in (s.level, self.level):
                 self._interlock(s.level == TRIP, f"roll-over risk {LEVEL_NAMES[s.level]}: {100 * s.risk:.0f} % "
                                                   f"of tipping, roll {s.roll * 57.29578:.1f} deg")
-            if s.level == TRIP and self.np.stop_on_trip:
+            if s.level == TRIP and self.node_params.stop_on_trip:
                 self._request_stop()
         self.level, self.last = s.level, s
 
@@ -132,11 +132,11 @@ class RolloverNode:
         if not self.stopping.acquire(blocking=False):
             return
         try:
-            rospy.wait_for_service(self.np.set_mode_service, timeout=2.0)
-            r = rospy.ServiceProxy(self.np.set_mode_service, SetMode)(VehicleState.MODE_SAFE)
+            rospy.wait_for_service(self.node_params.set_mode_service, timeout=2.0)
+            r = rospy.ServiceProxy(self.node_params.set_mode_service, SetMode)(VehicleState.MODE_SAFE)
             (rospy.logwarn if r.success else rospy.logerr)("roll-over trip: PLC to SAFE: %s", r.message)
         except (rospy.ROSException, rospy.ServiceException) as exc:
-            rospy.logerr("roll-over trip: could not stop the vehicle through %s: %s", self.np.set_mode_service, exc)
+            rospy.logerr("roll-over trip: could not stop the vehicle through %s: %s", self.node_params.set_mode_service, exc)
         finally:
             self.stopping.release()
 

@@ -61,7 +61,7 @@ LATCHED = P.FAULT_WATCHDOG | P.FAULT_LINK  # acknowledged (~acknowledge) before 
 class PlcClientNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
-        self.np: NodeParams = node_params(NodeParams, mine)
+        self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: PlcClientParams = node_params(PlcClientParams, rest)
         self.mux = Multiplexer(self.p.setpoint_timeout, self.p.stop_brake)
         self.mode = -1  # unknown until the first state frame
@@ -154,9 +154,9 @@ class PlcClientNode:
         # Not before this node's clock runs (sim time 0: no /clock yet): its 50 Hz frames come
         # from a sim-time timer, so a driving mode asked for then has the watchdog brake and
         # the session time out before the first frame (a fresh clone's plan_and_drive.test)
-        if self.np.initial_mode and not self.initial_sent and rospy.get_time() > 0.0:
+        if self.node_params.initial_mode and not self.initial_sent and rospy.get_time() > 0.0:
             self.initial_sent = True
-            self._in_background(self._request_mode, P.MODE_BY_NAME[self.np.initial_mode])
+            self._in_background(self._request_mode, P.MODE_BY_NAME[self.node_params.initial_mode])
 
     def _on_ack(self, ack: P.Ack) -> None:
         self.mode = ack.mode

@@ -152,7 +152,7 @@ class SimNode:
     def __init__(self) -> None:
         raw = private_params()
         node_raw, sim_raw = split_params(raw, NodeParams)
-        self.np: NodeParams = node_params(NodeParams, node_raw)
+        self.node_params: NodeParams = node_params(NodeParams, node_raw)
         self.sim_params: SimParams = with_scenario(node_params(SimParams, sim_raw), "sim")
         if rospy.has_param("/scenario/actors"):  # the scenario's top-level actors: section
             try:
@@ -168,7 +168,7 @@ class SimNode:
         if rospy.has_param("/run/seed") or rospy.has_param("/scenario/seed"):
             self.sim_params = dataclasses.replace(self.sim_params, seed=run_seed())
         self.vehicle = vehicle_params()
-        actuators_file = self.np.actuators_file or package_file("config", "actuators.yaml")
+        actuators_file = self.node_params.actuators_file or package_file("config", "actuators.yaml")
         try:
             actuators = from_mapping(ActuatorParams, load_yaml(actuators_file), actuators_file)
         except ConfigError as exc:
@@ -178,12 +178,12 @@ class SimNode:
             self.sim = Simulator(self.sim_params, self.vehicle, actuators, urdf, site_params())
         except ConfigError as exc:
             fatal(f"cannot build the simulation: {exc}")
-        if self.np.script_file:
+        if self.node_params.script_file:
             try:
-                self.sim.script = load_script(self.np.script_file)
+                self.sim.script = load_script(self.node_params.script_file)
             except ConfigError as exc:
                 fatal(str(exc))
-            rospy.loginfo("driving the PLC from %s (%.1f s of setpoints)", self.np.script_file, self.sim.script.end)
+            rospy.loginfo("driving the PLC from %s (%.1f s of setpoints)", self.node_params.script_file, self.sim.script.end)
         plc = self.sim_params.plc
         try:
             key = P.ensure_key(plc.key_file)
@@ -204,25 +204,25 @@ class SimNode:
 
         self.lock = threading.Lock()
         self.requests: "queue.Queue[Callable[[], None]]" = queue.Queue()
-        self.paused = self.np.start_paused
-        self.rtf = self.np.real_time_factor
+        self.paused = self.node_params.start_paused
+        self.rtf = self.node_params.real_time_factor
         self.debug_sp: Optional[Setpoint] = None
         self.behind_warned = 0.0
-        self.pacer = Pacer(self.rtf, self.np.max_lag)
+        self.pacer = Pacer(self.rtf, self.node_params.max_lag)
         # At factor 1 the simulator is the world, which does not wait (pacing.LoopHold)
-        self.hold = LoopHold(self.np.loop_hold if self.rtf != 1.0 else 0.0, self.np.loop_hold_budget)
+        self.hold = LoopHold(self.node_params.loop_hold if self.rtf != 1.0 else 0.0, self.node_params.loop_hold_budget)
         self.stopped = False
         self.stop_event = threading.Event()
         self.lockstep: Optional[LockstepDriver] = None
         if rospy.get_param("/lockstep/enabled", False):
-            if self.np.clock_every != 1:
-                fatal(f"lockstep needs ~clock_every = 1 (a round per /clock tick), not {self.np.clock_every}")
+            if self.node_params.clock_every != 1:
+                fatal(f"lockstep needs ~clock_every = 1 (a round per /clock tick), not {self.node_params.clock_every}")
             self.lockstep = LockstepDriver(self.server, lambda: self.stop_event.is_set() or rospy.is_shutdown())
         # Above factor 1 the stack's sim-time deadlines shrink in wall time (pacing.StaleSlowdown);
         # lockstep waits for the loop anyway
         fast = self.lockstep is None and (self.rtf == 0.0 or self.rtf > 1.0)
-        self.slowdown = StaleSlowdown(self.np.stale_slowdown if fast else {}, self.np.stale_slowdown_budget,
-                                      self.np.stale_slowdown_fraction, self.np.stale_slowdown_escalate)
+        self.slowdown = StaleSlowdown(self.node_params.stale_slowdown if fast else {}, self.node_params.stale_slowdown_budget,
+                                      self.node_params.stale_slowdown_fraction, self.node_params.stale_slowdown_escalate)
         self.watched_stamped: Dict[tuple, bool] = {}  # (topic, md5sum) -> whether a Header comes first
         for topic in self.slowdown.max_age:
             # Only the header's stamp is read, from the serialised message (no deserialisation)
@@ -248,17 +248,17 @@ class SimNode:
         self.pub_info = {f: rospy.Publisher(f"sim/stereo/{f.replace('camera_', '')}/camera_info", CameraInfo,
                                             queue_size=2) for f in self.pub_image}
         self.baseline = self._stereo_baseline()
-        self.tf = tf2_ros.TransformBroadcaster() if self.np.tf_mode != "none" else None
-        self.frames = C.Frames(map=self.np.map_frame, base=self.np.base_frame,
-                               ground_truth_child=(self.np.gt_frame if self.np.tf_mode == "ground_truth_frame"
-                                                   else self.np.base_frame),
-                               imu=self.np.imu_frame, mag=self.np.mag_frame)
+        self.tf = tf2_ros.TransformBroadcaster() if self.node_params.tf_mode != "none" else None
+        self.frames = C.Frames(map=self.node_params.map_frame, base=self.node_params.base_frame,
+                               ground_truth_child=(self.node_params.gt_frame if self.node_params.tf_mode == "ground_truth_frame"
+                                                   else self.node_params.base_frame),
+                               imu=self.node_params.imu_frame, mag=self.node_params.mag_frame)
 
         rospy.Service("~pause", Trigger, lambda _: self._set_paused(True))
         rospy.Service("~unpause", Trigger, lambda _: self._set_paused(False))
         rospy.Service("~reset", Trigger, self._srv_reset)
         rospy.Service("~step", Step, self._srv_step)
-        if self.np.debug_setpoints:
+        if self.node_params.debug_setpoints:
             rospy.Subscriber("~debug/setpoint", Setpoint, self._on_debug_setpoint, queue_size=10)
             rospy.logwarn("debug setpoints enabled: ~debug/setpoint drives the PLC in AUTO, bypassing the TCP link")
 
@@ -270,9 +270,9 @@ class SimNode:
 
     # ---------------------------------------------------------------- set-up
     def _urdf_text(self) -> str:
-        if not self.np.urdf_file:
+        if not self.node_params.urdf_file:
             return build_urdf(self.vehicle)
-        path = self.np.urdf_file
+        path = self.node_params.urdf_file
         if not os.path.isfile(path):
             fatal(f"~urdf_file {path}: file not found")
         with open(path, "r", encoding="utf-8") as fh:
@@ -391,10 +391,10 @@ class SimNode:
             self._step_once()
             if self.slowdown.enabled:
                 self._pace_for_the_loop()
-            if self.np.run_until and self.sim.t >= self.np.run_until - 1e-9 and not self.stopped:
-                rospy.loginfo("reached ~run_until = %.3f s: pausing", self.np.run_until)
+            if self.node_params.run_until and self.sim.t >= self.node_params.run_until - 1e-9 and not self.stopped:
+                rospy.loginfo("reached ~run_until = %.3f s: pausing", self.node_params.run_until)
                 self.paused = self.stopped = True
-            if self.sim.steps % self.np.steps_per_wake:
+            if self.sim.steps % self.node_params.steps_per_wake:
                 self.server.poll(0.0)  # the next step at once: one wake-up per batch of steps
                 continue
             drops = self.pacer.drops
@@ -403,7 +403,7 @@ class SimNode:
                 now = time.monotonic()
                 if now - self.behind_warned > 10.0:
                     rospy.logwarn("simulator behind real_time_factor %.2f by more than ~max_lag %.3f s: "
-                                  "%.3f s of sim time dropped so far", self.rtf, self.np.max_lag,
+                                  "%.3f s of sim time dropped so far", self.rtf, self.node_params.max_lag,
                                   self.pacer.dropped)
                     self.behind_warned = now
             self._drain_plc_events()
@@ -458,7 +458,7 @@ class SimNode:
             # frame arriving now waits one publication (~50 us), not the whole step.
             if client:
                 self.server.poll(0.0)
-        if self.sim.steps % self.np.clock_every == 0:
+        if self.sim.steps % self.node_params.clock_every == 0:
             self._publish_clock()
             if self.lockstep is not None:  # the loop consumes this tick before the next step
                 self.lockstep.settle(self.sim.t)
