@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.ros import import_map
+from quadrivio_recordings.ros import import_map
 
 # The foreign recording's conventions: gyro in deg/s, accelerometer in g, magnetometer in
 # gauss, the IMU mounted with y and z reversed, positions in NED about another origin, and

@@ -14,7 +14,6 @@ WS="$ROOT/.ws"
 STAMPS="$ROOT/.setup"
 SYS_PYTHON=/usr/bin/python3
 # Every catkin package of the repository: the root package plus its children.
-PACKAGES=(quadrivio quadrivio_description quadrivio_plc quadrivio_drivers quadrivio_sim quadrivio_localization quadrivio_navigation)
 
 step() { printf '\n[setup %s] %s\n' "$(date +%H:%M:%S)" "$*"; }
 as_root() { if [ "$(id -u)" -eq 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -57,30 +56,7 @@ venv_step() {
 workspace_step() {
   step "3/3 catkin workspace ($WS)"
   mkdir -p "$WS/src"
-  for p in "${PACKAGES[@]}"; do
-    [ "$p" = quadrivio ] && continue
-    target="$ROOT/$p"
-    [ -L "$WS/src/$p" ] && [ "$(readlink "$WS/src/$p")" = "$target" ] || ln -sfn "$target" "$WS/src/$p"
-  done
-  # The root package: a folder of links to its own entries only. A single link to the
-  # repository root would make rospack's package folder contain the workspace itself
-  # (and .venv, results/...): rosrun's 'find -L' then finds every executable twice and
-  # loops through .ws/src/quadrivio/.ws/...
-  root_pkg="$WS/src/quadrivio"
-  [ -L "$root_pkg" ] && rm -f "$root_pkg"
-  mkdir -p "$root_pkg"
-  for entry in "$ROOT"/*; do
-    name=$(basename "$entry")
-    case "$name" in
-      quadrivio_*|results|bench|tools|pytest.ini|Makefile|env.sh|requirements.txt) continue ;;
-    esac
-    [ -e "$entry" ] || continue
-    [ -L "$root_pkg/$name" ] && [ "$(readlink "$root_pkg/$name")" = "$entry" ] || ln -sfn "$entry" "$root_pkg/$name"
-  done
-  # Remove links to packages or entries that no longer exist.
-  for l in "$WS/src"/* "$root_pkg"/*; do
-    [ -L "$l" ] && [ ! -e "$l" ] && rm -f "$l"
-  done
+  "$ROOT/tools/link_into_workspace.sh" "$WS/src" > /dev/null
   # catkin runs with the venv's python: its generators still find Debian's catkin and
   # genpy (system site packages), and the devel-space relay scripts of the nodes get the
   # venv interpreter as their shebang, so gtsam, ompl and pybullet import in every node.

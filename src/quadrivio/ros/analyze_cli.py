@@ -27,7 +27,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     site, vehicle = load_site(site_file), load_vehicle(vehicle_file)
     imap = None
     if map_file:
-        from quadrivio_description.ros import import_map
+        from quadrivio_recordings.ros import import_map
 
         imap = import_map.load(map_file)  # a ConfigError names the file and the key
     missing = missing_topics(bag, imap)

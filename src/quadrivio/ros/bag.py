@@ -10,7 +10,7 @@ from typing import Dict, Iterable, List, Optional
 import numpy as np
 
 from quadrivio_description.frames import yaw_from_quaternion
-from quadrivio_description.ros.bag import open_bag, read_messages
+from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 

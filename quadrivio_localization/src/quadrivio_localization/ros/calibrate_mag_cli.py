@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.ros.bag import open_bag, read_messages
+from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -137,7 +137,7 @@ def run(args) -> int:
     print(f"[calibrate_mag] reading {args.bag}", flush=True)
     imap = None
     if args.map:
-        from quadrivio_description.ros import import_map
+        from quadrivio_recordings.ros import import_map
 
         imap = import_map.load(args.map)  # a ConfigError names the file and the key
     m, counts = read_levelled(args.bag, args.mag_topic, args.imu_topic, args.state_topic, vehicle, args.tilt_tau,
@@ -186,7 +186,7 @@ def parse(argv: List[str]) -> argparse.Namespace:
                          "readings taken while moving (optional; default %(default)s)")
     ap.add_argument("--map", default="", metavar="YAML",
                     help="import mapping of a recording made with other drivers (its mag, imu and state sections "
-                         "replace the topic options; quadrivio_description.ros.import_map)")
+                         "replace the topic options; quadrivio_recordings.ros.import_map)")
     ap.add_argument("--min-speed", type=float, default=0.3, help="[m/s] use readings above this speed (%(default)s)")
     ap.add_argument("--period", type=float, default=0.1, help="[s] readings are averaged over this (%(default)s)")
     ap.add_argument("--tilt-tau", type=float, default=1.0, help="[s] roll/pitch low-pass, as the smoother (%(default)s)")

@@ -31,7 +31,7 @@ from typing import Any, Dict, Iterator, List, Tuple
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.paths import package_dir as _package_dir
-from quadrivio_description.ros.bag import open_bag, read_messages
+from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
@@ -118,7 +118,7 @@ def parse(argv: List[str]) -> argparse.Namespace:
                     help="quadrivio_plc/VehicleState topic (or any type with header, wheel_speed, handlebar)")
     ap.add_argument("--map", default="", metavar="YAML",
                     help="import mapping of a recording made with other drivers: its topics, types, fields, units "
-                         "(quadrivio_description.ros.import_map); replaces --gps/--imu/--mag/--state")
+                         "(quadrivio_recordings.ros.import_map); replaces --gps/--imu/--mag/--state")
     ap.add_argument("--only-outputs", action="store_true", help="write only the replay's topics")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap.parse_args(argv)
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     topics = {"gps": args.gps, "imu": args.imu, "mag": args.mag, "state": args.state}
     imap = None
     if args.map:
-        from quadrivio_description.ros import import_map
+        from quadrivio_recordings.ros import import_map
 
         imap = import_map.load(args.map)  # a ConfigError names the file and the key
         topics = {r: imap.topics().get(r, "") for r in ROLES}

@@ -36,9 +36,9 @@ import numpy as np
 import yaml
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, to_mapping
-from quadrivio_description.ros import import_map
-from quadrivio_description.ros.bag import open_bag, read_messages
-from quadrivio_description.ros.import_map import get_field
+from quadrivio_recordings.ros import import_map
+from quadrivio_recordings.ros.bag import open_bag, read_messages
+from quadrivio_recordings.ros.import_map import get_field
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 
@@ -357,7 +357,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     p.add_argument("--loops", default="handlebar,speed", help="which loops: handlebar,speed")
     p.add_argument("--config", default="", help="YAML of topics and fields (keys: setpoint, measurement, stamp)")
     p.add_argument("--map", default="", metavar="YAML",
-                   help="import mapping of a recording made with other drivers (quadrivio_description.ros.import_map): "
+                   help="import mapping of a recording made with other drivers (quadrivio_recordings.ros.import_map): "
                         "its setpoint and state sections, units and scales included; replaces --config and the "
                         "topic, field and stamp options")
     p.add_argument("--setpoint-topic", default="", help="default /vehicle/setpoint/auto")

@@ -1,0 +1,6 @@
+# Installs the package's Python modules (src/quadrivio_recordings); used by catkin_python_setup().
+from setuptools import setup
+from catkin_pkg.python_setup import generate_distutils_setup
+
+setup(**generate_distutils_setup(packages=["quadrivio_recordings", "quadrivio_recordings.ros"],
+                                 package_dir={"": "src"}))
