@@ -2,4 +2,4 @@
 from setuptools import setup
 from catkin_pkg.python_setup import generate_distutils_setup
 
-setup(**generate_distutils_setup(packages=["quadrivio_description", "quadrivio_description.ros"], package_dir={"": "src"}))
+setup(**generate_distutils_setup(packages=["quadrivio_description"], package_dir={"": "src"}))

@@ -1,6 +1,6 @@
 """The simulator's lockstep decisions (quadrivio_sim.lockstep), ROS-free."""
 
-from quadrivio_description.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC, member_names
+from quadrivio_runtime.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC, member_names
 from quadrivio_sim.lockstep import Coordinator
 
 

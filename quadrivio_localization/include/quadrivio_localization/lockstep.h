@@ -1,4 +1,4 @@
-// Lockstep for roscpp nodes: the C++ side of quadrivio_description/ros/lockstep.py (read
+// Lockstep for roscpp nodes: the C++ side of quadrivio_runtime/lockstep.py (read
 // its docstring for the protocol). When /lockstep/enabled and ~lockstep are true, what the
 // node's subscriptions receive is queued and counted per topic and publisher, its timers do
 // not run on their own, and the simulator's rounds on /lockstep/command decide what is

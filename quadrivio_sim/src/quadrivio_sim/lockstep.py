@@ -1,4 +1,4 @@
-"""The simulator's side of lockstep (see ``quadrivio_description.ros.lockstep`` for the
+"""The simulator's side of lockstep (see ``quadrivio_runtime.lockstep`` for the
 protocol): which members a round must name, what its watermark is, and when the graph is
 ready to start. ROS-free; the node feeds it the members' reports and its own counts.
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Dict, Iterable, List, Optional, Tuple
 
-from quadrivio_description.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC
+from quadrivio_runtime.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC
 
 Watermark = Dict[str, Dict[str, int]]
 

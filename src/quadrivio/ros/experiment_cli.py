@@ -33,7 +33,7 @@ import xmlrpc.client
 from typing import List, Optional, Set, Tuple
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.lockstep_wire import ARMED_PARAM
+from quadrivio_runtime.lockstep_wire import ARMED_PARAM
 
 from ..bus_stats import BusStatsError, behind, inbound_ports, received, sent, socket_quiet, tcp_queues
 from ..scenario import load_scenario

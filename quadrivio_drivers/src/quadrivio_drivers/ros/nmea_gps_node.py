@@ -22,9 +22,9 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from quadrivio_description.config import param
-from quadrivio_description.ros import diagnostics
-from quadrivio_description.ros.params import node_params
-from quadrivio_description.ros.timer import guarded_timer
+from quadrivio_runtime import diagnostics, init_node
+from quadrivio_runtime.params import node_params
+from quadrivio_runtime.timer import guarded_timer
 
 from ..nmea import NO_FIX, Fix, NmeaFixParser, Velocity
 from ..transports import serial_lines, tcp_lines
@@ -126,6 +126,6 @@ class NmeaGpsNode:
 
 
 def main() -> None:
-    rospy.init_node("nmea_gps")
+    init_node("nmea_gps", lockstep=False)  # the real driver: outside the simulated loop
     NmeaGpsNode()
     rospy.spin()

@@ -28,14 +28,15 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 
+from quadrivio_runtime import init_node
 from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
-from quadrivio_description.ros import diagnostics, lockstep
-from quadrivio_description.ros.direct import direct_publisher
-from quadrivio_description.ros.params import (node_params, private_params, site_params, split_params,
+from quadrivio_runtime import diagnostics
+from quadrivio_runtime.direct import direct_publisher
+from quadrivio_runtime.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
+from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning
@@ -225,7 +226,6 @@ class LocalizationNode:
 
 
 def main() -> None:
-    rospy.init_node("localization")
-    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    init_node("localization")  # joins lockstep when sim.launch lockstep:=true
     LocalizationNode()
     rospy.spin()

@@ -21,11 +21,12 @@ from typing import Optional
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 
+from quadrivio_runtime import init_node
 from quadrivio_description.config import ConfigError
-from quadrivio_description.ros import diagnostics, lockstep
-from quadrivio_description.ros.direct import direct_publisher
-from quadrivio_description.ros.params import fatal, node_params, with_scenario
-from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
+from quadrivio_runtime import diagnostics
+from quadrivio_runtime.direct import direct_publisher
+from quadrivio_runtime.params import fatal, node_params, with_scenario
+from quadrivio_runtime.timer import guarded_timer, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
 
 from ..excitation import ExcitationParams, build
@@ -101,7 +102,6 @@ class ExcitationNode:
 
 
 def main() -> None:
-    rospy.init_node("excitation")
-    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    init_node("excitation")  # joins lockstep when sim.launch lockstep:=true
     ExcitationNode()
     rospy.spin()

@@ -21,8 +21,8 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_description.ros import lockstep
-from quadrivio_description.ros.params import fatal, node_params, with_scenario
+from quadrivio_runtime import init_node
+from quadrivio_runtime.params import fatal, node_params, with_scenario
 
 from ..paths import PathParams, path_points
 from .conversions import path_msg, pose_stamped, yaw_of
@@ -76,8 +76,7 @@ class PathPublisher:
 
 
 def main() -> None:
-    rospy.init_node("path_publisher")
-    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    init_node("path_publisher")  # joins lockstep when sim.launch lockstep:=true
     node = PathPublisher()
     rospy.spin()
     if node.failed:  # exit status 1, as fatal() gives outside a callback (required nodes end the launch)

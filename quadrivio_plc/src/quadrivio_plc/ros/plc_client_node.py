@@ -26,7 +26,6 @@ only and needs before a driving mode is entered again (PROTOCOL.md, Re-entry).
 from __future__ import annotations
 
 import math
-import sys
 import threading
 import traceback
 from dataclasses import dataclass
@@ -37,10 +36,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import param
-from quadrivio_description.ros import diagnostics, lockstep
-from quadrivio_description.ros.direct import direct_publisher
-from quadrivio_description.ros.params import node_params, private_params, split_params
-from quadrivio_description.ros.timer import guarded_timer, on_clock_jump, publish
+from quadrivio_runtime import diagnostics, init_node, lockstep
+from quadrivio_runtime.direct import direct_publisher
+from quadrivio_runtime.params import node_params, private_params, split_params
+from quadrivio_runtime.timer import guarded_timer, on_clock_jump, publish
 
 from .. import protocol as P
 from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink, mode_without_session
@@ -345,8 +344,6 @@ class PlcClientNode:
 def main() -> None:
     # The link's I/O thread must get the GIL as soon as a frame arrives, not after the
     # default 5 ms switch interval of whichever rospy thread holds it.
-    sys.setswitchinterval(2e-4)
-    rospy.init_node("plc_client")
-    lockstep.install()  # a no-op unless sim.launch lockstep:=true
+    init_node("plc_client", switch_interval=2e-4)  # joins lockstep when sim.launch lockstep:=true
     PlcClientNode()
     rospy.spin()

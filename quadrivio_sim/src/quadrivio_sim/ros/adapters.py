@@ -23,7 +23,7 @@ imu/mag MagneticField), ``laser`` (scan_in -> scan LaserScan), ``camera`` (image
 camera_info_in -> image_raw, camera_info). All topic names are relative, remapped in launch.
 
 Publishing. Each output is written to its subscribers in the delivering thread while they
-keep up (``quadrivio_description.ros.direct``), with the queue sizes a real driver's
+keep up (``quadrivio_runtime.direct``), with the queue sizes a real driver's
 publisher has only for a subscriber that falls behind; readings are delivered by the
 thread that receives /clock (no thread wake-up per tick).
 
@@ -32,7 +32,7 @@ simulator (the paper's layer 2), which is how ``adapters.launch`` runs them: eve
 process pays for each /clock tick, its timer threads and its connections, whatever it
 publishes (about 0.014 CPU s per simulated second each, measured), and five adapters in
 one process pay it once. Its inputs are read by one thread
-(``quadrivio_description.ros.receiver``): they all arrive with the simulator's step, and
+(``quadrivio_runtime.receiver``): they all arrive with the simulator's step, and
 with a rospy thread per input the threads woken together fought for the GIL (a sixth
 less CPU for the process). Its parameters, after costmap_2d's plugins::
 
@@ -60,10 +60,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
-from quadrivio_description.ros import diagnostics, lockstep, receiver
-from quadrivio_description.ros.direct import direct_publisher
-from quadrivio_description.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
-from quadrivio_description.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
+from quadrivio_runtime import diagnostics, init_node
+from quadrivio_runtime.direct import direct_publisher
+from quadrivio_runtime.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
+from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
@@ -425,11 +425,8 @@ def hosted_slots(params: Dict[str, Any], namespace: str) -> List[Tuple[str, Slot
 
 def main(kind: str = "") -> None:
     """``kind`` "": the host (``sensor_adapters``); else one adapter as its own node."""
-    if receiver.wanted():
-        receiver.install()  # one thread reads every input; before init_node: /clock's too
-    rospy.init_node(kind or "sensor_adapters")
-    if lockstep.install() is not None:  # a no-op unless sim.launch lockstep:=true
-        receiver.release()  # a round waits in the command's callback for the clock and its inputs
+    # one thread reads every input (/clock's too), released in lockstep
+    init_node(kind or "sensor_adapters", receiver=True)
     if kind:
         slots = [(NODE_KINDS[kind], Slot(rospy.get_name(), private_params(), ""))]
     else:

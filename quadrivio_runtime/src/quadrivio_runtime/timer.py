@@ -20,9 +20,13 @@ import threading
 import traceback
 from typing import Callable, List, Optional, Tuple
 
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
+
 import rospy
 
-from ..guards import InputGuard
+from quadrivio_description.guards import InputGuard
 
 
 def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str,

@@ -17,6 +17,10 @@ start.
 
 from __future__ import annotations
 
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
+
 import rospy
 from diagnostic_updater import Updater
 

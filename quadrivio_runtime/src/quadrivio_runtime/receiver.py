@@ -50,6 +50,10 @@ import threading
 import traceback
 from typing import Callable, Dict, List, Optional, Tuple
 
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
+
 import rospy
 import rospy.impl.tcpros_pubsub as pubsub
 from genpy import DeserializationError

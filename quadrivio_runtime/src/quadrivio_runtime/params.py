@@ -11,11 +11,15 @@ from __future__ import annotations
 import sys
 from typing import Any, Dict, NoReturn, Tuple, Type, TypeVar
 
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
+
 import rospy
 
-from ..config import ConfigError, from_mapping, replace_nested
-from ..site import SiteParams, default_site_file, load_site
-from ..vehicle import VehicleParams, default_vehicle_file, load_vehicle, with_overrides
+from quadrivio_description.config import ConfigError, from_mapping, replace_nested
+from quadrivio_description.site import SiteParams, default_site_file, load_site
+from quadrivio_description.vehicle import VehicleParams, default_vehicle_file, load_vehicle, with_overrides
 
 T = TypeVar("T")
 

@@ -1,4 +1,4 @@
-"""The simulator as /clock's source, the one place that reaches into rospy's internals.
+"""The simulator as /clock's source.
 
 With /use_sim_time, rospy subscribes every node to /clock; in the simulator that would
 send each tick back to its own publisher over TCP (a third of the node's CPU time at
@@ -8,6 +8,10 @@ with ros::Time::setNow.
 """
 
 from __future__ import annotations
+
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
 
 import rospy
 

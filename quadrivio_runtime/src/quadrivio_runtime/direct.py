@@ -21,8 +21,8 @@ wire); once it is empty, sends are in place again. A lagging or stopped subscrib
 therefore never blocks the publisher, and it gets every message it can take, in order,
 when it reads again.
 
-This is the one place that reaches into rospy's publisher connections
-(``_PublisherImpl.add_connection`` and ``connections``).
+It reaches into rospy's publisher connections (``_PublisherImpl.add_connection`` and
+``connections``); like every such reach, it lives in :mod:`quadrivio_runtime`.
 """
 
 from __future__ import annotations
@@ -32,6 +32,10 @@ import threading
 import warnings
 from collections import deque
 from typing import Deque, Optional
+
+from . import compat
+
+compat.checked()  # rospy's version checked and the mends applied before rospy's use
 
 import rospy
 from rospy.exceptions import TransportTerminated
