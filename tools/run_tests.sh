@@ -3,8 +3,9 @@
 # packages' test/ folders), one line of progress per rostest. Called by `make test`
 # with env.sh sourced.
 #
-#   tools/run_tests.sh [all|unit|system|rostest] [rostest name filter]
-# unit: pytest without the `system` marker (no ROS master); system: pytest tests that
+#   tools/run_tests.sh [all|unit|gtest|system|rostest] [rostest name filter]
+# unit: pytest without the `system` marker (no ROS master) and the C++ gtests (gtest: those
+# alone); system: pytest tests that
 # launch the stack through the user's commands; all: both, then the rostests.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -19,6 +20,29 @@ if [ "$mode" = all ] || [ "$mode" = unit ]; then
   printf '\n[test] unit tests (pytest -m "not system")\n'
   if ! python3 -m pytest -q -m "not system"; then
     failed+=("unit tests")
+  fi
+fi
+
+if [ "$mode" = all ] || [ "$mode" = unit ] || [ "$mode" = gtest ]; then
+  # C++ cores without ROS (catkin_add_gtest targets: built on demand, not by make setup)
+  printf '\n[test] C++ unit tests (gtest)\n'
+  if (cd "$ROOT/.ws" && cmake --build build --target tests -- -j2) > "$LOGS/gtest_build.log" 2>&1; then
+    mapfile -t gtests < <(find "$ROOT/.ws/devel/lib" -maxdepth 2 -type f -executable -name 'test_*' | sort)
+    [ ${#gtests[@]} -gt 0 ] || failed+=("gtest: no test executable built")
+    for g in "${gtests[@]}"; do
+      name="$(basename "$(dirname "$g")")/$(basename "$g")"
+      if "$g" --gtest_brief=1 > "$LOGS/gtest_$(basename "$g").log" 2>&1; then
+        printf '  %-50s ok (%s)\n' "$name" "$(grep -o '[0-9]* tests\? from [0-9]* test suites\? ran' "$LOGS/gtest_$(basename "$g").log")"
+      else
+        printf '  %-50s FAILED (log: %s)\n' "$name" "$LOGS/gtest_$(basename "$g").log"
+        grep -E '^\[  FAILED  \]|Failure|Expected|Which is' "$LOGS/gtest_$(basename "$g").log" | head -20 | sed 's/^/    /'
+        failed+=("gtest $name")
+      fi
+    done
+  else
+    echo "  building the gtests failed; last lines of $LOGS/gtest_build.log:"
+    tail -20 "$LOGS/gtest_build.log" | sed 's/^/    /'
+    failed+=("gtest build")
   fi
 fi
 
