@@ -150,7 +150,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     from quadrivio_description.vehicle import load_vehicle
     from quadrivio_localization.smoother import Localizer
     from quadrivio_navigation.follower import ABORTED, DONE, PurePursuit
-    from quadrivio_plc import protocol as P
+    from quadrivio_plc import protocol
     from quadrivio_sim.actuators import load_actuators
     from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams, MagAdapterParams
     from quadrivio_sim.noise import GpsNoise, ImuNoise, Latency, MagNoise, adapter_rng
@@ -206,7 +206,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
             c = math.cos(yaw)
             speed = gt.linear_velocity[0] * c + gt.linear_velocity[1] * math.sin(yaw)
             cmd = pp.update(gt.position[0], gt.position[1], yaw, speed, 0.0, sim.t)
-            sim.plc.setpoint(P.SOURCE_AUTO, cmd.speed, cmd.handlebar, cmd.brake, sim.t)
+            sim.plc.setpoint(protocol.SOURCE_AUTO, cmd.speed, cmd.handlebar, cmd.brake, sim.t)
             if pp.status in (DONE, ABORTED) and done_at is None:
                 done_at = sim.t
                 end_reason = "path_done" if pp.status == DONE else f"aborted: {cmd.reason}"

@@ -48,7 +48,7 @@ from quadrivio_description.kinematics import max_delta
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
 
-from . import factors as F
+from . import factors
 from .gps_gate import NO_FIX, NOT_FINITE, TOO_OLD, GpsGate
 from .params import CalibrationPriors, LocalizerParams, MagCalibration, NoiseParams, Prior
 
@@ -287,7 +287,7 @@ class Localizer:
             recent = [m for m in self.mags if abs(m[0] - t_gps) < 0.5 / self.p.mag_rate] or [self.mags[-1]]
             m_avg = np.mean([(m[1], m[2]) for m in recent], axis=0)
             n_recent = len(recent)
-            theta0 = F.mag_heading(m_avg, mag_mean, self.h_en)
+            theta0 = factors.mag_heading(m_avg, mag_mean, self.h_en)
             t_first = self._t(self.k)
             while self.mags and self.mags[0][0] <= t_first:
                 self.mags.popleft()
@@ -320,7 +320,7 @@ class Localizer:
         graph.add(gtsam.PriorFactorVector(G(self.k), np.zeros(2), gtsam.noiseModel.Isotropic.Sigma(2, drift)))
         values.insert(G(self.k), np.zeros(2))
         if m_avg is not None:
-            graph.add(F.mag_factor(self._mag_noise(n_recent), X(self.k), M(self.k), m_avg, self.h_en))
+            graph.add(factors.mag_factor(self._mag_noise(n_recent), X(self.k), M(self.k), m_avg, self.h_en))
             self.counters.mag_used += 1
         t = self._t(self.k)
         stamps = {X(self.k): t, B(self.k): t, K(self.k): t, M(self.k): t, G(self.k): t}
@@ -396,12 +396,12 @@ class Localizer:
             span = sum(dt for dt, _, _ in samples)
             speed = sum(dt * v for dt, v, _ in samples) / span
             handlebar = sum(dt * h for dt, _, h in samples) / span
-            (dx, dy, dth), _ = F.arc(span, speed, handlebar, kin, self.v.wheelbase, self.v.steering.ratio,
+            (dx, dy, dth), _ = factors.arc(span, speed, handlebar, kin, self.v.wheelbase, self.v.steering.ratio,
                                      self.max_delta)
             dist = abs(speed) * span * kin[0]
             sxy = math.hypot(nz.odometry_xy, nz.odometry_xy_per_m * dist)
             sth = math.hypot(nz.odometry_theta, nz.odometry_theta_per_m * dist)
-            graph.add(F.odometry_factor(gtsam.noiseModel.Diagonal.Sigmas(np.array([sxy, sxy, sth])), X(k0), X(k1),
+            graph.add(factors.odometry_factor(gtsam.noiseModel.Diagonal.Sigmas(np.array([sxy, sxy, sth])), X(k0), X(k1),
                                         K(k0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio,
                                         self.max_delta))
             guess = prev.compose(gtsam.Pose2(dx, dy, dth))
@@ -419,11 +419,11 @@ class Localizer:
                 # Neither the wheel nor the handlebar: the vehicle keeps its motion, give or
                 # take a random acceleration (a braked vehicle stops within the GPS's reach).
                 sigma = nz.no_odometry_accel * self.dt * self.dt
-                graph.add(F.constant_velocity_factor(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
+                graph.add(factors.constant_velocity_factor(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
                                                      X(k0 - 1), X(k0), X(k1)))
                 guess = prev.compose(before.between(prev))
         if dth_gyro is not None:
-            graph.add(F.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
+            graph.add(factors.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
                                     X(k0), X(k1), B(k0), dth_gyro, self.dt))
             self.latest_rate = dth_gyro / self.dt - float(prev_b[0])
         else:
@@ -431,7 +431,7 @@ class Localizer:
         for key, value, sigmas in ((B, prev_b, [nz.gyro_bias_walk * math.sqrt(self.dt)]), (K, kin, self.kin_walk),
                                    (M, mag, self.mag_walk), (G, drift, self.gps_walk)):
             if key is G:
-                graph.add(F.gauss_markov_factor(gtsam.noiseModel.Diagonal.Sigmas(sigmas), G(k0), G(k1), self.gps_phi))
+                graph.add(factors.gauss_markov_factor(gtsam.noiseModel.Diagonal.Sigmas(sigmas), G(k0), G(k1), self.gps_phi))
                 value = self.gps_phi * value
             elif key is B or self.p.calibrate:
                 graph.add(gtsam.BetweenFactorVector(key(k0), key(k1), np.zeros(len(value)),
@@ -543,7 +543,7 @@ class Localizer:
                     zc = z - self.latest_speed * (t - self._t(k)) * np.array([math.cos(pose.theta()),
                                                                                math.sin(pose.theta())])
                     drift = self._vector(G(k), values)
-                    innovations[i] = (zc - drift - F.gps_antenna(pose, self.lever), zc, pose, drift)
+                    innovations[i] = (zc - drift - factors.gps_antenna(pose, self.lever), zc, pose, drift)
             return innovations[i]
 
         for i, (t, z, ve, vn, status) in enumerate(self.gps_pending):
@@ -588,7 +588,7 @@ class Localizer:
                     # two decisions is not a step of the fixes (it was: after a freeze of the
                     # odometry the estimate's own recovery opened a "burst" that locked out an
                     # RTK receiver's fixes).
-                    a_p = self._vector(G(k_p), values) + F.gps_antenna(pose_p, self.lever)
+                    a_p = self._vector(G(k_p), values) + factors.gps_antenna(pose_p, self.lever)
                     n = (t - t_p) / self.dt
                     dist = abs(self.latest_speed) * (t - t_p)
                     Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
@@ -598,7 +598,7 @@ class Localizer:
             for t_b, z_b, k_b, R_b in self.decided:
                 pose_b = self._pose(k_b, values) if t - g.group - 1e-9 <= t_b and k_b >= self.oldest_k else None
                 if pose_b is not None:
-                    behind.append((z_b - self._vector(G(k_b), values) - F.gps_antenna(pose_b, self.lever), R_b))
+                    behind.append((z_b - self._vector(G(k_b), values) - factors.gps_antenna(pose_b, self.lever), R_b))
             self.decided.append((t, zc, k, R))
             bursts, yielded = self.gate.bursts, self.gate.yielded
             verdict = self.gate.decide(t, nu, self._antenna_cov(pose), R, group, step, behind)
@@ -613,7 +613,7 @@ class Localizer:
                 noise = gtsam.noiseModel.Robust.Create(
                     gtsam.noiseModel.mEstimator.Huber.Create(self.p.noise.gps_huber),
                     gtsam.noiseModel.Diagonal.Sigmas(np.sqrt([ve, vn])))
-                graph.add(F.gps_factor(noise, X(k), G(k), zc, self.lever))
+                graph.add(factors.gps_factor(noise, X(k), G(k), zc, self.lever))
                 self.counters.gps_used += 1
         self.gps_pending = keep
 
@@ -682,7 +682,7 @@ class Localizer:
                 self.mag_at_rest = True
             else:
                 self.mag_at_rest = False
-            graph.add(F.mag_factor(self._mag_noise(len(ms)), X(k), M(k), np.mean(ms, axis=0), self.h_en))
+            graph.add(factors.mag_factor(self._mag_noise(len(ms)), X(k), M(k), np.mean(ms, axis=0), self.h_en))
             self.counters.mag_used += 1
 
     def _at_rest(self, t0: float, t1: float) -> bool:

@@ -25,13 +25,13 @@ from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 from quadrivio_description.config import param
 
-from . import protocol as P
+from . import protocol
 
 
 @dataclass(frozen=True)
 class PlcClientParams:
     host: str = param("127.0.0.1", doc="PLC address: loopback for the emulated PLC, the vehicle's PLC on the real one")
-    port: int = param(P.DEFAULT_PORT, lo=1, hi=65535, doc="PLC TCP port")
+    port: int = param(protocol.DEFAULT_PORT, lo=1, hi=65535, doc="PLC TCP port")
     send_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="setpoint / heartbeat rate (ROS time)")
     setpoint_timeout: float = param(0.25, lo=0.01, hi=10.0, unit="s",
                                     doc="a setpoint older than this is replaced by a stop")
@@ -119,7 +119,7 @@ def mode_without_session(last_mode: int) -> int:
     else SAFE, never a driving mode. Without a session the PLC brakes to SAFE (PROTOCOL.md,
     safety contract 2): its watchdog trips within 0.2 s of the last setpoint, and whatever it
     is in, no setpoint of ours reaches it. HALT is only left on request, so it is still HALT."""
-    return P.MODE_HALT if last_mode == P.MODE_HALT else P.MODE_SAFE
+    return protocol.MODE_HALT if last_mode == protocol.MODE_HALT else protocol.MODE_SAFE
 
 
 @dataclass
@@ -142,35 +142,35 @@ class Multiplexer:
     def __init__(self, timeout: float, stop_brake: float) -> None:
         self.timeout = timeout
         self.stop_brake = stop_brake
-        self.latest: Dict[int, Optional[_Latest]] = {P.SOURCE_MANUAL: None, P.SOURCE_AUTO: None}
-        self.held_handlebar: Dict[int, float] = {P.SOURCE_MANUAL: 0.0, P.SOURCE_AUTO: 0.0}
-        self.stale: Dict[int, bool] = {P.SOURCE_MANUAL: False, P.SOURCE_AUTO: False}
+        self.latest: Dict[int, Optional[_Latest]] = {protocol.SOURCE_MANUAL: None, protocol.SOURCE_AUTO: None}
+        self.held_handlebar: Dict[int, float] = {protocol.SOURCE_MANUAL: 0.0, protocol.SOURCE_AUTO: 0.0}
+        self.stale: Dict[int, bool] = {protocol.SOURCE_MANUAL: False, protocol.SOURCE_AUTO: False}
 
     def update(self, source: int, t: float, speed: float, handlebar: float, brake: float) -> None:
         self.latest[source] = _Latest(t, speed, handlebar, brake)
 
-    def _setpoint(self, source: int, now: float) -> P.Setpoint:
+    def _setpoint(self, source: int, now: float) -> protocol.Setpoint:
         sp = self.latest[source]
         fresh = sp is not None and 0.0 <= now - sp.t <= self.timeout
         self.stale[source] = not fresh
         if not fresh:
-            return P.Setpoint(source, 0.0, self.held_handlebar[source], self.stop_brake)
+            return protocol.Setpoint(source, 0.0, self.held_handlebar[source], self.stop_brake)
         self.held_handlebar[source] = sp.handlebar
-        return P.Setpoint(source, sp.speed, sp.handlebar, sp.brake)
+        return protocol.Setpoint(source, sp.speed, sp.handlebar, sp.brake)
 
-    def frames(self, mode: int, now: float) -> List[P.Message]:
-        if mode == P.MODE_MANUAL:
-            return [self._setpoint(P.SOURCE_MANUAL, now)]
-        if mode == P.MODE_AUTO:
-            return [self._setpoint(P.SOURCE_AUTO, now)]
-        if mode == P.MODE_ASSISTED:
-            return [self._setpoint(P.SOURCE_AUTO, now), self._setpoint(P.SOURCE_MANUAL, now)]
-        return [P.Heartbeat()]
+    def frames(self, mode: int, now: float) -> List[protocol.Message]:
+        if mode == protocol.MODE_MANUAL:
+            return [self._setpoint(protocol.SOURCE_MANUAL, now)]
+        if mode == protocol.MODE_AUTO:
+            return [self._setpoint(protocol.SOURCE_AUTO, now)]
+        if mode == protocol.MODE_ASSISTED:
+            return [self._setpoint(protocol.SOURCE_AUTO, now), self._setpoint(protocol.SOURCE_MANUAL, now)]
+        return [protocol.Heartbeat()]
 
     def accepts(self, mode: int, source: int) -> bool:
         """Whether a new setpoint of ``source`` is forwarded at once in ``mode``."""
-        return (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
-               (mode == P.MODE_AUTO and source == P.SOURCE_AUTO) or mode == P.MODE_ASSISTED
+        return (mode == protocol.MODE_MANUAL and source == protocol.SOURCE_MANUAL) or \
+               (mode == protocol.MODE_AUTO and source == protocol.SOURCE_AUTO) or mode == protocol.MODE_ASSISTED
 
 
 @dataclass
@@ -198,8 +198,8 @@ class PlcLink:
     RTT_WINDOW = 100_000  # round-trip times kept for the percentiles (10 min at 2 x 50 Hz fits)
 
     def __init__(self, host: str, port: int, *, connect_timeout: float = 1.0, reconnect_min: float = 0.1,
-                 reconnect_max: float = 5.0, on_state: Callable[[P.State], None] = lambda s: None,
-                 on_ack: Callable[[P.Ack], None] = lambda a: None,
+                 reconnect_max: float = 5.0, on_state: Callable[[protocol.State], None] = lambda s: None,
+                 on_ack: Callable[[protocol.Ack], None] = lambda a: None,
                  on_event: Callable[[str, str], None] = lambda level, text: None,
                  clock: Callable[[], float] = time.monotonic, key_file: str = "",
                  key: Optional[bytes] = None) -> None:
@@ -219,9 +219,9 @@ class PlcLink:
         self.out = bytearray()
         self.seq = 0
         self.sent_at: Dict[int, float] = {}
-        self.ack_callbacks: Dict[int, Callable[[P.Ack], None]] = {}
+        self.ack_callbacks: Dict[int, Callable[[protocol.Ack], None]] = {}
         self.rtts: Deque[float] = deque(maxlen=self.RTT_WINDOW)
-        self.decoder = P.FrameDecoder()
+        self.decoder = protocol.FrameDecoder()
         self.peer_seq: Optional[int] = None
         self.stats = LinkStats()
         self.backoff = reconnect_min
@@ -249,13 +249,13 @@ class PlcLink:
         if now < self.next_attempt:
             return
         try:
-            key = self.key if self.key is not None else P.load_key(self.key_file)
-        except P.KeyFileError as exc:
+            key = self.key if self.key is not None else protocol.load_key(self.key_file)
+        except protocol.KeyFileError as exc:
             self._fail(str(exc))
             return
         if self.key is None and key != self._key_checked:
             self._key_checked = key
-            for warning in P.key_warnings(self.key_file, key):
+            for warning in protocol.key_warnings(self.key_file, key):
                 self.on_event("notice", warning)  # once per key, not throttled away by the link's warnings
         try:
             sock = socket.create_connection((self.host, self.port), timeout=self.connect_timeout)
@@ -272,18 +272,18 @@ class PlcLink:
             self.sent_at.clear()
             self.ack_callbacks.clear()
         self._key = key
-        self.decoder = P.FrameDecoder()
+        self.decoder = protocol.FrameDecoder()
         self.peer_seq = None
         self.sel.register(sock, selectors.EVENT_READ)
         self.opened = self.last_rx = now
 
-    def _on_hello(self, hello: P.Hello) -> None:
+    def _on_hello(self, hello: protocol.Hello) -> None:
         with self.lock:
             if self.sock is None or self.session:
                 return
             seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFF
-            self.out += P.encode(P.Auth(P.auth_mac(self._key, hello.nonce)), seq)
+            self.out += protocol.encode(protocol.Auth(protocol.auth_mac(self._key, hello.nonce)), seq)
             error = self._flush_locked()
         if error:
             self._drop(error)
@@ -319,7 +319,7 @@ class PlcLink:
         self.sel.close()
 
     # --------------------------------------------------------------- sending
-    def send(self, msg: P.Message, on_ack: Optional[Callable[[P.Ack], None]] = None) -> Optional[int]:
+    def send(self, msg: protocol.Message, on_ack: Optional[Callable[[protocol.Ack], None]] = None) -> Optional[int]:
         """Send ``msg``; returns its sequence number, None when not connected.
 
         ``on_ack`` is called (in the polling thread) with the PLC's ACK of this frame; it is
@@ -330,7 +330,7 @@ class PlcLink:
                 return None
             seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFF
-            self.out += P.encode(msg, seq)
+            self.out += protocol.encode(msg, seq)
             self.sent_at[seq] = self.clock()
             if on_ack is not None:
                 self.ack_callbacks[seq] = on_ack
@@ -373,7 +373,7 @@ class PlcLink:
         for _key, _ in self.sel.select(timeout=timeout):
             self._read()
         if self.sock is not None and not self.session and self.clock() - self.opened > self.connect_timeout:
-            self._drop(f"no HELLO/AUTH answer within {self.connect_timeout} s (not a version-{P.VERSION} "
+            self._drop(f"no HELLO/AUTH answer within {self.connect_timeout} s (not a version-{protocol.VERSION} "
                        f"Quadrivio PLC?)")
         with self.lock:
             error = self._flush_locked() if self.sock is not None and self.out else ""
@@ -409,17 +409,17 @@ class PlcLink:
                     self.stats.lost_frames += gap
                     self.on_event("warn", f"{gap} PLC frame(s) lost before seq {seq}")
             self.peer_seq = seq
-            if isinstance(msg, P.State):
+            if isinstance(msg, protocol.State):
                 self.stats.states_received += 1
                 self.on_state(msg)
-            elif isinstance(msg, P.Hello):
+            elif isinstance(msg, protocol.Hello):
                 self._on_hello(msg)
-            elif isinstance(msg, P.Ack) and not self.session:
-                if msg.acked_type == P.Auth.TYPE and msg.status == P.OK:
+            elif isinstance(msg, protocol.Ack) and not self.session:
+                if msg.acked_type == protocol.Auth.TYPE and msg.status == protocol.OK:
                     self._on_session()
-            elif isinstance(msg, P.Ack):
+            elif isinstance(msg, protocol.Ack):
                 self.stats.acks_received += 1
-                if msg.status == P.STALE:
+                if msg.status == protocol.STALE:
                     self.stats.stale_acks += 1
                 with self.lock:
                     sent = self.sent_at.pop(msg.ack_seq, None)
@@ -429,7 +429,7 @@ class PlcLink:
                 if callback is not None:
                     callback(msg)
                 self.on_ack(msg)
-            elif isinstance(msg, P.Refused):
+            elif isinstance(msg, protocol.Refused):
                 self.stats.refused += 1
                 self._drop(f"refused by the PLC: {msg.text}")
                 return False

@@ -15,7 +15,7 @@ from typing import List, Tuple
 
 import numpy as np
 
-from . import protocol as P
+from . import protocol
 
 KINDS = ("random", "truncated", "oversized", "bad checksum", "bad version", "unknown type", "bad payload",
          "replayed", "out of mode", "wrong source", "not finite", "heartbeat", "stop request")
@@ -35,7 +35,7 @@ class FrameFuzzer:
         return s
 
     def _setpoint(self, source: int, speed: float, handlebar: float, brake: float) -> bytes:
-        return P.encode(P.Setpoint(source, speed, handlebar, brake), self._next_seq())
+        return protocol.encode(protocol.Setpoint(source, speed, handlebar, brake), self._next_seq())
 
     def chunk(self) -> Tuple[str, bytes]:
         r = self.rng
@@ -44,44 +44,44 @@ class FrameFuzzer:
         if kind == "random":
             data = r.integers(0, 256, int(r.integers(1, 200)), dtype=np.uint8).tobytes()
         elif kind == "truncated":
-            f = self._setpoint(P.SOURCE_AUTO, 3.0, 0.3, 0.0)
+            f = self._setpoint(protocol.SOURCE_AUTO, 3.0, 0.3, 0.0)
             data = f[:int(r.integers(1, len(f)))]
         elif kind == "oversized":
-            data = P.HEADER.pack(P.MAGIC, P.VERSION, P.Setpoint.TYPE, self._next_seq(),
-                                 int(r.integers(P.MAX_PAYLOAD + 1, 65536))) + bytes(int(r.integers(0, 64)))
+            data = protocol.HEADER.pack(protocol.MAGIC, protocol.VERSION, protocol.Setpoint.TYPE, self._next_seq(),
+                                 int(r.integers(protocol.MAX_PAYLOAD + 1, 65536))) + bytes(int(r.integers(0, 64)))
         elif kind == "bad checksum":
-            f = bytearray(self._setpoint(P.SOURCE_AUTO, 3.0, 0.0, 0.0))
+            f = bytearray(self._setpoint(protocol.SOURCE_AUTO, 3.0, 0.0, 0.0))
             f[-1] ^= 0xFF
             data = bytes(f)
         elif kind == "bad version":
-            f = bytearray(P.encode(P.ModeRequest(P.MODE_AUTO), self._next_seq()))
+            f = bytearray(protocol.encode(protocol.ModeRequest(protocol.MODE_AUTO), self._next_seq()))
             f[2] = int(r.choice([0, 1, 3, 255]))
             data = bytes(f)
         elif kind == "unknown type":
-            body = P.HEADER.pack(P.MAGIC, P.VERSION, int(r.choice([0x00, 0x06, 0x7F, 0x90, 0xFF])),
+            body = protocol.HEADER.pack(protocol.MAGIC, protocol.VERSION, int(r.choice([0x00, 0x06, 0x7F, 0x90, 0xFF])),
                                  self._next_seq(), 4) + b"\x01\x02\x03\x04"
-            data = body + P.CRC.pack(P.crc16(body))
+            data = body + protocol.CRC.pack(protocol.crc16(body))
         elif kind == "bad payload":
             payload = bytes(int(r.integers(0, 20)))
-            if len(payload) == P.Setpoint.FMT.size:
+            if len(payload) == protocol.Setpoint.FMT.size:
                 payload += b"\x00"
-            body = P.HEADER.pack(P.MAGIC, P.VERSION, P.Setpoint.TYPE, self._next_seq(), len(payload)) + payload
-            data = body + P.CRC.pack(P.crc16(body))
+            body = protocol.HEADER.pack(protocol.MAGIC, protocol.VERSION, protocol.Setpoint.TYPE, self._next_seq(), len(payload)) + payload
+            data = body + protocol.CRC.pack(protocol.crc16(body))
         elif kind == "replayed":
             old = (self.seq - int(r.integers(1, 1000))) & 0xFFFF
-            data = P.encode(P.Setpoint(P.SOURCE_AUTO, 3.0, 0.0, 0.0), old)
+            data = protocol.encode(protocol.Setpoint(protocol.SOURCE_AUTO, 3.0, 0.0, 0.0), old)
         elif kind == "out of mode":  # setpoints while the PLC is in SAFE: never acted on
-            data = self._setpoint(int(r.choice([P.SOURCE_AUTO, P.SOURCE_MANUAL])), float(r.uniform(-2, 5)),
+            data = self._setpoint(int(r.choice([protocol.SOURCE_AUTO, protocol.SOURCE_MANUAL])), float(r.uniform(-2, 5)),
                                   float(r.uniform(-0.5, 0.5)), 0.0)
         elif kind == "wrong source":
             data = self._setpoint(int(r.choice([0, 3, 255])), 3.0, 0.0, 0.0)
         elif kind == "not finite":
             bad = [float("nan"), float("inf"), float("-inf")]
-            data = self._setpoint(P.SOURCE_AUTO, bad[int(r.integers(3))], bad[int(r.integers(3))], 0.0)
+            data = self._setpoint(protocol.SOURCE_AUTO, bad[int(r.integers(3))], bad[int(r.integers(3))], 0.0)
         elif kind == "heartbeat":
-            data = P.encode(P.Heartbeat(), self._next_seq())
+            data = protocol.encode(protocol.Heartbeat(), self._next_seq())
         else:  # "stop request": SAFE, allowed and harmless
-            data = P.encode(P.ModeRequest(P.MODE_SAFE), self._next_seq())
+            data = protocol.encode(protocol.ModeRequest(protocol.MODE_SAFE), self._next_seq())
         return kind, data
 
     def frames(self, n: int) -> List[Tuple[str, bytes]]:

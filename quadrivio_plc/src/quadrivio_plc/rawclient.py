@@ -9,7 +9,7 @@ import socket
 import time
 from typing import List, Optional, Tuple
 
-from . import protocol as P
+from . import protocol
 
 
 class RawClient:
@@ -18,10 +18,10 @@ class RawClient:
     def __init__(self, host: str, port: int, timeout: float = 2.0) -> None:
         self.sock = socket.create_connection((host, port), timeout=timeout)
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.decoder = P.FrameDecoder()
-        self.inbox: List[Tuple[int, P.Message]] = []
+        self.decoder = protocol.FrameDecoder()
+        self.inbox: List[Tuple[int, protocol.Message]] = []
         self.seq = 0
-        self.hello: Optional[P.Hello] = None
+        self.hello: Optional[protocol.Hello] = None
         self.closed = False
 
     def close(self) -> None:
@@ -48,7 +48,7 @@ class RawClient:
         self.inbox += self.decoder.feed(data)
         return True
 
-    def wait_for(self, kind, timeout: float = 2.0, pred=lambda m: True) -> Optional[P.Message]:
+    def wait_for(self, kind, timeout: float = 2.0, pred=lambda m: True) -> Optional[protocol.Message]:
         """The first received message of type ``kind`` satisfying ``pred`` (None on timeout or
         once the PLC closed the connection and nothing matching is left)."""
         deadline = time.monotonic() + timeout
@@ -72,24 +72,24 @@ class RawClient:
             self.closed = True
             return False
 
-    def send(self, msg: P.Message, seq: Optional[int] = None) -> int:
+    def send(self, msg: protocol.Message, seq: Optional[int] = None) -> int:
         """Send ``msg`` with ``seq`` (default: the next sequence number); returns the seq used."""
         if seq is None:
             seq = self.seq
             self.seq = (self.seq + 1) & 0xFFFF
-        self.send_raw(P.encode(msg, seq))
+        self.send_raw(protocol.encode(msg, seq))
         return seq
 
-    def request(self, msg: P.Message, seq: Optional[int] = None, timeout: float = 2.0) -> Optional[P.Ack]:
+    def request(self, msg: protocol.Message, seq: Optional[int] = None, timeout: float = 2.0) -> Optional[protocol.Ack]:
         """Send ``msg`` and wait for its ACK."""
         s = self.send(msg, seq)
-        return self.wait_for(P.Ack, timeout, lambda a: a.ack_seq == s)
+        return self.wait_for(protocol.Ack, timeout, lambda a: a.ack_seq == s)
 
-    def authenticate(self, key: bytes, timeout: float = 2.0) -> Optional[P.Message]:
+    def authenticate(self, key: bytes, timeout: float = 2.0) -> Optional[protocol.Message]:
         """Answer HELLO with ``key``; returns the PLC's answer: its ACK, or REFUSED (None on timeout)."""
-        self.hello = self.wait_for(P.Hello, timeout)
+        self.hello = self.wait_for(protocol.Hello, timeout)
         if self.hello is None:
             return None
-        s = self.send(P.Auth(P.auth_mac(key, self.hello.nonce)))
-        return self.wait_for((P.Ack, P.Refused), timeout,
-                             lambda m: isinstance(m, P.Refused) or m.ack_seq == s)
+        s = self.send(protocol.Auth(protocol.auth_mac(key, self.hello.nonce)))
+        return self.wait_for((protocol.Ack, protocol.Refused), timeout,
+                             lambda m: isinstance(m, protocol.Refused) or m.ack_seq == s)

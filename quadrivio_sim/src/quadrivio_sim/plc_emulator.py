@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Tuple
 
 from quadrivio_description.config import param
-from quadrivio_plc import protocol as P
+from quadrivio_plc import protocol
 
 from .actuators import Actuation, LowLevelControl
 from .noise import LatencyParams
@@ -47,7 +47,7 @@ from .standstill import StandstillMonitor, StandstillParams
 @dataclass(frozen=True)
 class PlcParams:
     host: str = param("127.0.0.1", doc="address the emulated PLC listens on (loopback by default)")
-    port: int = param(P.DEFAULT_PORT, lo=0, hi=65535, doc="TCP port (0: any free port)")
+    port: int = param(protocol.DEFAULT_PORT, lo=0, hi=65535, doc="TCP port (0: any free port)")
     cycle: float = param(0.01, lo=0.001, hi=0.1, unit="s", doc="PLC cycle of the low-level loops")
     state_rate: float = param(50.0, lo=1.0, hi=1000.0, unit="Hz", doc="rate of STATE frames to the client")
     watchdog: float = param(0.2, lo=0.01, hi=10.0, unit="s",
@@ -79,22 +79,22 @@ class PlcParams:
 
 
 ALLOWED = {
-    P.MODE_HALT: {P.MODE_HALT, P.MODE_SAFE},
-    P.MODE_SAFE: {P.MODE_HALT, P.MODE_SAFE, P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO},
+    protocol.MODE_HALT: {protocol.MODE_HALT, protocol.MODE_SAFE},
+    protocol.MODE_SAFE: {protocol.MODE_HALT, protocol.MODE_SAFE, protocol.MODE_MANUAL, protocol.MODE_ASSISTED, protocol.MODE_AUTO},
 }
-DRIVING = (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO)
-LATCHED = P.FAULT_WATCHDOG | P.FAULT_LINK  # faults that stay until the client acknowledges them (RESET)
+DRIVING = (protocol.MODE_MANUAL, protocol.MODE_ASSISTED, protocol.MODE_AUTO)
+LATCHED = protocol.FAULT_WATCHDOG | protocol.FAULT_LINK  # faults that stay until the client acknowledges them (RESET)
 for _m in DRIVING:
-    ALLOWED[_m] = {P.MODE_HALT, P.MODE_SAFE, *DRIVING}
+    ALLOWED[_m] = {protocol.MODE_HALT, protocol.MODE_SAFE, *DRIVING}
 
 
 def _roles(mode: int, source: int) -> Tuple[bool, bool]:
     """(takes speed and brake, takes handlebar) from ``source`` in ``mode``."""
-    motion = (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
-             (mode == P.MODE_AUTO and source == P.SOURCE_AUTO) or \
-             (mode == P.MODE_ASSISTED and source == P.SOURCE_MANUAL)
-    handlebar = (mode == P.MODE_MANUAL and source == P.SOURCE_MANUAL) or \
-                (mode in (P.MODE_AUTO, P.MODE_ASSISTED) and source == P.SOURCE_AUTO)
+    motion = (mode == protocol.MODE_MANUAL and source == protocol.SOURCE_MANUAL) or \
+             (mode == protocol.MODE_AUTO and source == protocol.SOURCE_AUTO) or \
+             (mode == protocol.MODE_ASSISTED and source == protocol.SOURCE_MANUAL)
+    handlebar = (mode == protocol.MODE_MANUAL and source == protocol.SOURCE_MANUAL) or \
+                (mode in (protocol.MODE_AUTO, protocol.MODE_ASSISTED) and source == protocol.SOURCE_AUTO)
     return motion, handlebar
 
 
@@ -108,7 +108,7 @@ class PlcLogic:
         self.reset(0.0)
 
     def reset(self, t: float) -> None:
-        self.mode = P.MODE_BY_NAME[self.p.initial_mode]
+        self.mode = protocol.MODE_BY_NAME[self.p.initial_mode]
         self.faults = 0
         self.last_rx = -math.inf  # last valid frame of the session
         self.fresh_motion = -math.inf  # last accepted speed/brake setpoint of the mode's source
@@ -130,7 +130,7 @@ class PlcLogic:
 
     def _stop(self, mode: int, fault: int, why: str, t: float) -> None:
         """Leave a driving mode for SAFE or HALT: brake, handlebar held, setpoints cleared."""
-        self.events.append(("stop", f"{why} ({P.mode_name(self.mode)} -> {P.mode_name(mode)})"))
+        self.events.append(("stop", f"{why} ({protocol.mode_name(self.mode)} -> {protocol.mode_name(mode)})"))
         self.mode = mode
         self.faults |= fault
         self.sp_speed, self.sp_brake = 0.0, self.p.hold_brake
@@ -138,56 +138,56 @@ class PlcLogic:
         self.standstill.braking(t)
 
     # -------------------------------------------------------------- frames
-    def handle(self, t: float, seq: int, msg: P.Message) -> Optional[P.Ack]:
+    def handle(self, t: float, seq: int, msg: protocol.Message) -> Optional[protocol.Ack]:
         """React to one valid frame of the authenticated session; returns the ACK to send."""
         self.last_rx = t
         self.last_seq = seq
-        if isinstance(msg, P.ModeRequest):
-            return P.Ack(seq, msg.TYPE, self.request_mode(msg.mode, t), self.mode)
-        if isinstance(msg, P.Setpoint):
-            return P.Ack(seq, msg.TYPE, self.setpoint(msg.source, msg.speed, msg.handlebar, msg.brake, t), self.mode)
-        if isinstance(msg, P.Reset):
-            return P.Ack(seq, msg.TYPE, self.acknowledge(msg.faults, t), self.mode)
-        if isinstance(msg, (P.Heartbeat, P.Auth)):
-            return P.Ack(seq, msg.TYPE, P.OK, self.mode)
+        if isinstance(msg, protocol.ModeRequest):
+            return protocol.Ack(seq, msg.TYPE, self.request_mode(msg.mode, t), self.mode)
+        if isinstance(msg, protocol.Setpoint):
+            return protocol.Ack(seq, msg.TYPE, self.setpoint(msg.source, msg.speed, msg.handlebar, msg.brake, t), self.mode)
+        if isinstance(msg, protocol.Reset):
+            return protocol.Ack(seq, msg.TYPE, self.acknowledge(msg.faults, t), self.mode)
+        if isinstance(msg, (protocol.Heartbeat, protocol.Auth)):
+            return protocol.Ack(seq, msg.TYPE, protocol.OK, self.mode)
         return None  # PLC-to-client messages coming back: ignored
 
     def acknowledge(self, faults: int, t: float) -> int:
         """RESET: the client acknowledges latched faults (WATCHDOG, LINK), at a verified standstill only."""
         latched = self.faults & LATCHED & faults
         if not latched:
-            return P.OK
+            return protocol.OK
         ok, why = self.standstill.verified(t)
         if not ok:
-            self.events.append(("refused", f"refused to acknowledge {P.fault_names(latched)}: not at standstill ({why})"))
-            return P.NOT_AT_STANDSTILL
+            self.events.append(("refused", f"refused to acknowledge {protocol.fault_names(latched)}: not at standstill ({why})"))
+            return protocol.NOT_AT_STANDSTILL
         self.faults &= ~latched
-        self.events.append(("acknowledged", f"{P.fault_names(latched)} acknowledged"))
-        return P.OK
+        self.events.append(("acknowledged", f"{protocol.fault_names(latched)} acknowledged"))
+        return protocol.OK
 
     def request_mode(self, mode: int, t: float = 0.0) -> int:
-        if mode not in P.MODE_NAMES or mode not in ALLOWED[self.mode]:
-            self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
-            return P.BAD_TRANSITION
+        if mode not in protocol.MODE_NAMES or mode not in ALLOWED[self.mode]:
+            self.events.append(("refused", f"refused mode change {protocol.mode_name(self.mode)} -> {protocol.mode_name(mode)}"))
+            return protocol.BAD_TRANSITION
         if mode in DRIVING and self.mode not in DRIVING:
             # Re-entry (PROTOCOL.md): a stop with a fault is acknowledged first, and the
             # vehicle must stand, verified by the wheel and the accelerometer over a hold
             # time (a locked wheel reads 0 while the body slides on).
             if self.faults & LATCHED:
-                self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> "
-                                               f"{P.mode_name(mode)}: {P.fault_names(self.faults & LATCHED)} "
+                self.events.append(("refused", f"refused mode change {protocol.mode_name(self.mode)} -> "
+                                               f"{protocol.mode_name(mode)}: {protocol.fault_names(self.faults & LATCHED)} "
                                                f"not acknowledged (RESET)"))
-                return P.NOT_ACKNOWLEDGED
+                return protocol.NOT_ACKNOWLEDGED
             ok, why = self.standstill.verified(t)
             if not ok:
-                self.events.append(("refused", f"refused mode change {P.mode_name(self.mode)} -> "
-                                               f"{P.mode_name(mode)}: not at standstill ({why})"))
-                return P.NOT_AT_STANDSTILL
+                self.events.append(("refused", f"refused mode change {protocol.mode_name(self.mode)} -> "
+                                               f"{protocol.mode_name(mode)}: not at standstill ({why})"))
+                return protocol.NOT_AT_STANDSTILL
         if mode != self.mode:
             if mode in DRIVING and self.mode not in DRIVING:
                 # Start from standstill with the handlebar where it is; the client has one
                 # watchdog period from now to send its first setpoint.
-                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
+                self.events.append(("mode", f"mode {protocol.mode_name(self.mode)} -> {protocol.mode_name(mode)}"))
                 self.sp_speed, self.sp_brake = 0.0, 0.0
                 self.sp_handlebar = self.control.handlebar.angle
                 self.fresh_motion = self.fresh_handlebar = t
@@ -195,27 +195,27 @@ class PlcLogic:
             elif mode in DRIVING:
                 # Between driving modes: the new source must be fresh within what is left
                 # of the current watchdog period (a mode change never feeds the watchdog).
-                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
+                self.events.append(("mode", f"mode {protocol.mode_name(self.mode)} -> {protocol.mode_name(mode)}"))
                 self.fresh_motion = self.fresh_handlebar = self.fresh_since
                 self.mode = mode
             elif self.mode in DRIVING:
                 self._stop(mode, 0, "stop requested", t)
             else:
-                self.events.append(("mode", f"mode {P.mode_name(self.mode)} -> {P.mode_name(mode)}"))
+                self.events.append(("mode", f"mode {protocol.mode_name(self.mode)} -> {protocol.mode_name(mode)}"))
                 self.mode = mode
-        self.faults = (self.faults | P.FAULT_ESTOP) if mode == P.MODE_HALT else (self.faults & ~P.FAULT_ESTOP)
-        return P.OK
+        self.faults = (self.faults | protocol.FAULT_ESTOP) if mode == protocol.MODE_HALT else (self.faults & ~protocol.FAULT_ESTOP)
+        return protocol.OK
 
     def setpoint(self, source: int, speed: float, handlebar: float, brake: float,
                  t: Optional[float] = None) -> int:
         """Apply a setpoint; an accepted one at PLC time ``t`` feeds the watchdog for its roles."""
-        if not P.finite(speed, handlebar, brake):
-            return P.BAD_VALUE
+        if not protocol.finite(speed, handlebar, brake):
+            return protocol.BAD_VALUE
         if self.mode not in DRIVING:
-            return P.NOT_ACCEPTING
+            return protocol.NOT_ACCEPTING
         takes_motion, takes_handlebar = _roles(self.mode, source)
         if not (takes_motion or takes_handlebar):
-            return P.WRONG_SOURCE
+            return protocol.WRONG_SOURCE
         c_speed, c_handlebar, c_brake, clamped = self.control.clamp(speed, handlebar, brake)
         if takes_motion:
             self.sp_speed, self.sp_brake = c_speed, c_brake
@@ -226,28 +226,28 @@ class PlcLogic:
             if t is not None:
                 self.fresh_handlebar = t
         if clamped:
-            self.faults |= P.FAULT_SETPOINT_CLAMPED
+            self.faults |= protocol.FAULT_SETPOINT_CLAMPED
             self.events.append(("clamped", f"setpoint clamped: speed {speed:.3f} -> {c_speed:.3f} m/s, handlebar "
                                f"{handlebar:.3f} -> {c_handlebar:.3f} rad, brake {brake:.3f} -> {c_brake:.3f}"))
-            return P.CLAMPED
-        self.faults &= ~P.FAULT_SETPOINT_CLAMPED
-        return P.OK
+            return protocol.CLAMPED
+        self.faults &= ~protocol.FAULT_SETPOINT_CLAMPED
+        return protocol.OK
 
     def force_auto(self, t: float) -> None:
         """Debug path: enter AUTO from any mode (simulation test hook, never on the real PLC)."""
-        if self.mode != P.MODE_AUTO:
-            self.events.append(("mode", f"debug setpoint: mode {P.mode_name(self.mode)} -> AUTO"))
+        if self.mode != protocol.MODE_AUTO:
+            self.events.append(("mode", f"debug setpoint: mode {protocol.mode_name(self.mode)} -> AUTO"))
             if self.mode not in DRIVING:
                 self.sp_handlebar = self.control.handlebar.angle
-            self.mode = P.MODE_AUTO
-            self.faults &= ~(P.FAULT_WATCHDOG | P.FAULT_ESTOP | P.FAULT_LINK)
+            self.mode = protocol.MODE_AUTO
+            self.faults &= ~(protocol.FAULT_WATCHDOG | protocol.FAULT_ESTOP | protocol.FAULT_LINK)
         self.last_rx = self.fresh_motion = self.fresh_handlebar = t
 
     def link_lost(self, t: float, why: str) -> None:
         """The session ended (closed, failed, silent or replaced): a driving PLC brakes to SAFE."""
         self.link_losses += 1
         if self.mode in DRIVING:
-            self._stop(P.MODE_SAFE, P.FAULT_LINK, f"link lost ({why}): braking", t)
+            self._stop(protocol.MODE_SAFE, protocol.FAULT_LINK, f"link lost ({why}): braking", t)
 
     # --------------------------------------------------------------- cycle
     def cycle(self, t: float, wheel_speed: float, wheel_rate: float, accel_x: float = math.nan) -> Actuation:
@@ -259,16 +259,16 @@ class PlcLogic:
             self.events.append(("standstill", ev))
         if self.mode in DRIVING and t - self.fresh_since > self.p.watchdog:
             self.watchdog_trips += 1
-            self._stop(P.MODE_SAFE, P.FAULT_WATCHDOG,
+            self._stop(protocol.MODE_SAFE, protocol.FAULT_WATCHDOG,
                        f"watchdog: no fresh setpoint for {t - self.fresh_since:.3f} s > {self.p.watchdog} s, braking", t)
         if self.mode in DRIVING:
             return self.control.step(self.sp_speed, self.sp_handlebar, self.sp_brake, wheel_speed, wheel_rate)
-        handlebar = None if self.mode == P.MODE_HALT else self.control.handlebar.angle
+        handlebar = None if self.mode == protocol.MODE_HALT else self.control.handlebar.angle
         return self.control.step(0.0, handlebar, self.p.hold_brake, wheel_speed, wheel_rate)
 
-    def state(self, t: float, wheel_speed: float) -> P.State:
+    def state(self, t: float, wheel_speed: float) -> protocol.State:
         out = self.control.out
-        return P.State(t, self.mode, self.faults, self.last_seq, wheel_speed, out.handlebar, out.throttle,
+        return protocol.State(t, self.mode, self.faults, self.last_seq, wheel_speed, out.handlebar, out.throttle,
                        out.brake, self.sp_speed, self.sp_handlebar)
 
     def pop_events(self) -> List[Tuple[str, str]]:
@@ -311,7 +311,7 @@ class _Conn:
     opened: float  # wall time of accept
     host: str = ""
     seq: int = 0  # sequence number of our next frame on this connection
-    decoder: P.FrameDecoder = field(default_factory=P.FrameDecoder)
+    decoder: protocol.FrameDecoder = field(default_factory=protocol.FrameDecoder)
     out: bytearray = field(default_factory=bytearray)
     authed: bool = False
     last_seq: Optional[int] = None
@@ -350,7 +350,7 @@ class PlcServer:
         self.clock = clock
         self.wall = wall
         self.log = log
-        self.key = key if key is not None else P.ensure_key(self.p.key_file)
+        self.key = key if key is not None else protocol.ensure_key(self.p.key_file)
         self.sel = selectors.DefaultSelector()
         self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -413,7 +413,7 @@ class PlcServer:
         if self.pending:
             now = self.wall()
             for conn in [c for c in self.pending.values() if now - c.opened > self.p.auth_timeout]:
-                self._refuse(conn, P.NOT_AUTHENTICATED, f"no authentication within {self.p.auth_timeout} s")
+                self._refuse(conn, protocol.NOT_AUTHENTICATED, f"no authentication within {self.p.auth_timeout} s")
 
     def _listen_when_a_slot_can_be_had(self) -> Optional[float]:
         """Accept new connections only when one can be served: a free pending slot, or an
@@ -442,24 +442,24 @@ class PlcServer:
             return
         peer = f"{addr[0]}:{addr[1]}"
         sock.setblocking(False)
-        conn = _Conn(sock, peer, P.new_nonce(), self.wall(), str(addr[0]))
+        conn = _Conn(sock, peer, protocol.new_nonce(), self.wall(), str(addr[0]))
         if conn.host not in self.known_hosts:
             mine = sum(1 for c in self.pending.values() if c.host == conn.host)
             if mine >= self.p.max_pending_per_source:
-                self._refuse(conn, P.BUSY, f"{conn.host} already has {mine} connections authenticating")
+                self._refuse(conn, protocol.BUSY, f"{conn.host} already has {mine} connections authenticating")
                 return
         if len(self.pending) >= self.p.max_pending:
             # Make way: the oldest authenticating connection has had its grace (the listener
             # is only polled then) and a key holder would have answered HELLO long ago.
             oldest = min(self.pending.values(), key=lambda c: c.opened)
             self.stats.evicted += 1
-            self._refuse(oldest, P.BUSY, f"no authentication after {self.wall() - oldest.opened:.2f} s while "
+            self._refuse(oldest, protocol.BUSY, f"no authentication after {self.wall() - oldest.opened:.2f} s while "
                                          f"{len(self.pending)} connections were authenticating: evicted for a "
                                          f"new one")
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.pending[sock] = conn
         self.sel.register(sock, selectors.EVENT_READ, conn)
-        self._send(conn, P.Hello(conn.nonce, self.p.watchdog, self.p.session_timeout))
+        self._send(conn, protocol.Hello(conn.nonce, self.p.watchdog, self.p.session_timeout))
         self._flush(conn)
 
     def _close(self, conn: _Conn) -> None:
@@ -475,7 +475,7 @@ class PlcServer:
         self.stats.refused += 1
         self._log_limited(f"refused {reason}", "warn", f"refused PLC connection from {conn.peer}: {why}")
         try:
-            conn.sock.send(P.encode(P.Refused(reason, why), conn.seq))
+            conn.sock.send(protocol.encode(protocol.Refused(reason, why), conn.seq))
         except OSError:
             pass
         self._close(conn)
@@ -523,11 +523,11 @@ class PlcServer:
         for seq, msg in frames:
             if self.session is not conn:
                 return
-            if not P.seq_advanced(seq, conn.last_seq):
+            if not protocol.seq_advanced(seq, conn.last_seq):
                 self.stats.stale_frames += 1
                 self._log_limited("stale", "warn", f"PLC frame seq {seq} from {conn.peer} does not advance "
                                                    f"(last {conn.last_seq}): replayed or reordered, ignored")
-                self._send(conn, P.Ack(seq, getattr(msg, "TYPE", 0), P.STALE, self.logic.mode))
+                self._send(conn, protocol.Ack(seq, getattr(msg, "TYPE", 0), protocol.STALE, self.logic.mode))
                 self.acks_sent += 1
                 continue
             conn.last_seq, conn.last_rx = seq, t
@@ -542,19 +542,19 @@ class PlcServer:
         """The first frame of a connection must be AUTH with the right MAC; returns the frames
         left to handle once it is the session (none otherwise)."""
         if conn.decoder.stats.bytes_skipped > self.GARBAGE_BEFORE_AUTH:
-            self._refuse(conn, P.NOT_AUTHENTICATED, "unframed input before authentication")
+            self._refuse(conn, protocol.NOT_AUTHENTICATED, "unframed input before authentication")
             return []
         if not frames:
             return []
         seq, msg = frames[0]
-        if not isinstance(msg, P.Auth) or not P.auth_ok(self.key, conn.nonce, msg.mac):
+        if not isinstance(msg, protocol.Auth) or not protocol.auth_ok(self.key, conn.nonce, msg.mac):
             self.stats.auth_failures += 1
-            what = "wrong key" if isinstance(msg, P.Auth) else f"{type(msg).__name__} before AUTH"
-            self._refuse(conn, P.NOT_AUTHENTICATED, f"authentication failed ({what})")
+            what = "wrong key" if isinstance(msg, protocol.Auth) else f"{type(msg).__name__} before AUTH"
+            self._refuse(conn, protocol.NOT_AUTHENTICATED, f"authentication failed ({what})")
             return []
         s = self.session
         if s is not None and t - s.last_rx <= self.p.watchdog:
-            self._refuse(conn, P.BUSY, f"a session with {s.peer} is active")
+            self._refuse(conn, protocol.BUSY, f"a session with {s.peer} is active")
             return []
         if s is not None:
             self._end_session(f"replaced by a new session from {conn.peer} after {t - s.last_rx:.2f} s of silence")
@@ -563,12 +563,12 @@ class PlcServer:
         self.session = conn
         self.known_hosts = {self.p.client_host, conn.host}
         self.stats.sessions += 1
-        self.log("info", f"PLC session opened by {conn.peer} (mode {P.mode_name(self.logic.mode)})")
-        self._send(conn, P.Ack(seq, P.Auth.TYPE, P.OK, self.logic.mode))
+        self.log("info", f"PLC session opened by {conn.peer} (mode {protocol.mode_name(self.logic.mode)})")
+        self._send(conn, protocol.Ack(seq, protocol.Auth.TYPE, protocol.OK, self.logic.mode))
         return frames[1:]
 
-    def _send(self, conn: _Conn, msg: P.Message) -> None:
-        conn.out += P.encode(msg, conn.seq)
+    def _send(self, conn: _Conn, msg: protocol.Message) -> None:
+        conn.out += protocol.encode(msg, conn.seq)
         conn.seq = (conn.seq + 1) & 0xFFFF
         self.frames_sent += 1
 
@@ -592,7 +592,7 @@ class PlcServer:
             else:
                 self._close(conn)
 
-    def send_state(self, state: P.State) -> None:
+    def send_state(self, state: protocol.State) -> None:
         if self.session is not None:
             conn = self.session
             self._send(conn, state)

@@ -27,7 +27,7 @@ import numpy as np
 from quadrivio_description.config import ConfigError, param
 from quadrivio_description.site import SiteParams, load_site
 from quadrivio_description.vehicle import VehicleParams
-from quadrivio_plc import protocol as P
+from quadrivio_plc import protocol
 
 from .actors import ActorMotion, ActorParams
 from .actuators import ActuatorParams, LowLevelControl
@@ -207,7 +207,7 @@ class Simulator:
         if self.steps % self.cycle_steps == 0:
             if self.script is not None:
                 self.plc.force_auto(self.t)
-                self.plc.setpoint(P.SOURCE_AUTO, *self.script.at(self.t))
+                self.plc.setpoint(protocol.SOURCE_AUTO, *self.script.at(self.t))
             m = self.params.measurement
             act = self.plc.cycle(self.t, m.wheel_speed_scale * w.rear_wheel_speed,
                                  m.wheel_speed_scale * w.rear_wheel_rate, self._plc_accel_x())

@@ -17,7 +17,7 @@ from quadrivio_description.config import ConfigError
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
-from .. import metrics as M
+from .. import metrics
 from ..plots import all_plots, format_metrics
 from .bag import NEEDED_FOR, BagError, missing_topics, read_run
 
@@ -47,7 +47,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
             raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
                            f"move it away to analyze the bag alone") from exc
-    m = M.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
+    m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
     os.makedirs(out, exist_ok=True)
     tmp = os.path.join(out, ".metrics.json.tmp")
     with open(tmp, "w") as fh:

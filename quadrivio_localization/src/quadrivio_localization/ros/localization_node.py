@@ -42,7 +42,7 @@ from quadrivio_plc.msg import VehicleState
 from ..dead_reckoning import DeadReckoning
 from ..msg import Calibration
 from ..smoother import Localizer, LocalizerParams
-from . import messages as M
+from . import messages
 
 
 @dataclass(frozen=True)
@@ -106,7 +106,7 @@ class LocalizationNode:
         if not self._accept("vehicle/state", t, m.wheel_speed, m.handlebar):
             return
         with self.lock:
-            M.add_state(self.loc, m)
+            messages.add_state(self.loc, m)
             x, y, th = self.dr.add(t, m.wheel_speed, m.handlebar)
         if self.tf is not None and math.isfinite(x):
             tr = TransformStamped()
@@ -122,14 +122,14 @@ class LocalizationNode:
         if not self._accept("imu/data", m.header.stamp.to_sec(), a.x, a.y, a.z, w.x, w.y, w.z):
             return
         with self.lock:
-            M.add_imu(self.loc, m)
+            messages.add_imu(self.loc, m)
 
     def _on_mag(self, m: MagneticField) -> None:
         f = m.magnetic_field
         if not self._accept("imu/mag", m.header.stamp.to_sec(), f.x, f.y, f.z):
             return
         with self.lock:
-            M.add_mag(self.loc, m)
+            messages.add_mag(self.loc, m)
 
     def _on_gps(self, m: NavSatFix) -> None:
         if m.status.status >= 0 and not self._accept("gps/fix", m.header.stamp.to_sec(), m.latitude, m.longitude):
@@ -137,7 +137,7 @@ class LocalizationNode:
         if m.status.status < 0 and not self._accept("gps/fix", m.header.stamp.to_sec()):
             return
         with self.lock:
-            M.add_gps(self.loc, m)
+            messages.add_gps(self.loc, m)
 
     # --------------------------------------------------------------- output
     def _tick(self, _event) -> None:
@@ -165,7 +165,7 @@ class LocalizationNode:
                              est.calibration["steering_gain"])
             odom = self.dr.pose_at(est.stamp) if self.tf is not None else None
         stamp = rospy.Time.from_sec(est.stamp)
-        m = M.odometry(est, self.node_params.map_frame, self.node_params.base_frame)
+        m = messages.odometry(est, self.node_params.map_frame, self.node_params.base_frame)
         self.pub_odom.publish(m)
         if odom is not None:
             self._publish_map_to_odom(est, odom, stamp)
@@ -188,7 +188,7 @@ class LocalizationNode:
         self.tf.sendTransform(tr)
 
     def _publish_calibration(self, est, sigma, stamp) -> None:
-        self.pub_cal.publish(M.calibration(est, sigma))
+        self.pub_cal.publish(messages.calibration(est, sigma))
 
     def _diagnose(self, stat):
         c = self.loc.counters

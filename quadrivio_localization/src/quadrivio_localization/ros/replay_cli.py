@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     import rospy
     from tf2_msgs.msg import TFMessage
 
-    from . import messages as M
+    from . import messages
 
     params, node = load_params(args.params)
     loc = Localizer(params, load_vehicle(args.vehicle), load_site(args.site))
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
 
         imap = import_map.load(args.map)  # a ConfigError names the file and the key
         topics = {r: imap.topics().get(r, "") for r in ROLES}
-    feed = {"gps": M.add_gps, "imu": M.add_imu, "mag": M.add_mag, "state": M.add_state}
+    feed = {"gps": messages.add_gps, "imu": messages.add_imu, "mag": messages.add_mag, "state": messages.add_state}
     role_of = {t: r for r, t in topics.items()}
     out_dir = os.path.dirname(os.path.abspath(args.out))
     os.makedirs(out_dir, exist_ok=True)
@@ -171,11 +171,11 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                     nonlocal last_cal
                     for tick, est in estimates:
                         at = rospy.Time.from_sec(tick)
-                        out.write("/localization/odom", M.odometry(est, node.map_frame, node.base_frame), at)
+                        out.write("/localization/odom", messages.odometry(est, node.map_frame, node.base_frame), at)
                         counts["estimates"] += 1
                         if tick - last_cal >= node.calibration_period:
                             last_cal = tick
-                            out.write("/localization/calibration", M.calibration(est, loc.calibration_sigma()), at)
+                            out.write("/localization/calibration", messages.calibration(est, loc.calibration_sigma()), at)
                             counts["calibrations"] += 1
 
                 for topic, raw, t in read_messages(bag, args.bag, raw=True, error=ReplayError):

@@ -41,7 +41,7 @@ from quadrivio_runtime.direct import direct_publisher
 from quadrivio_runtime.params import node_params, private_params, split_params
 from quadrivio_runtime.timer import guarded_timer, on_clock_jump, publish
 
-from .. import protocol as P
+from .. import protocol
 from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink, mode_without_session
 from ..msg import Interlock, Setpoint, VehicleState
 from ..srv import SetMode, SetModeResponse
@@ -53,8 +53,8 @@ class NodeParams:
                               doc="mode to request once connected (empty: none)")
 
 
-DRIVING = (P.MODE_MANUAL, P.MODE_ASSISTED, P.MODE_AUTO)
-LATCHED = P.FAULT_WATCHDOG | P.FAULT_LINK  # acknowledged (~acknowledge) before a driving mode
+DRIVING = (protocol.MODE_MANUAL, protocol.MODE_ASSISTED, protocol.MODE_AUTO)
+LATCHED = protocol.FAULT_WATCHDOG | protocol.FAULT_LINK  # acknowledged (~acknowledge) before a driving mode
 
 
 class PlcClientNode:
@@ -87,10 +87,10 @@ class PlcClientNode:
         if self.lockstep is not None:
             self.lockstep.link(lambda: self.link.connected, lambda: self.link.stats.frames_sent)
         self.setpoint_subs = {
-            P.SOURCE_AUTO: rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, P.SOURCE_AUTO,
+            protocol.SOURCE_AUTO: rospy.Subscriber("vehicle/setpoint/auto", Setpoint, self._on_setpoint, protocol.SOURCE_AUTO,
                                             queue_size=10),
-            P.SOURCE_MANUAL: rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint,
-                                              P.SOURCE_MANUAL, queue_size=10)}
+            protocol.SOURCE_MANUAL: rospy.Subscriber("vehicle/setpoint/manual", Setpoint, self._on_setpoint,
+                                              protocol.SOURCE_MANUAL, queue_size=10)}
         rospy.Subscriber("safety/interlock", Interlock, self._on_interlock, queue_size=20)
         rospy.Service("~set_mode", SetMode, self._srv_set_mode)
         rospy.Service("~acknowledge", Trigger, self._srv_acknowledge)
@@ -128,7 +128,7 @@ class PlcClientNode:
         else:
             rospy.logwarn_throttle(2.0, text)
 
-    def _on_state(self, s: P.State) -> None:
+    def _on_state(self, s: protocol.State) -> None:
         first = self.mode < 0
         self.mode, self.faults = s.mode, s.faults
         if self.interlocks and s.mode in DRIVING:
@@ -149,27 +149,27 @@ class PlcClientNode:
         if not publish(self.pub_state, m):
             return
         if first:
-            rospy.loginfo("PLC in mode %s", P.mode_name(s.mode))
+            rospy.loginfo("PLC in mode %s", protocol.mode_name(s.mode))
         # Not before this node's clock runs (sim time 0: no /clock yet): its 50 Hz frames come
         # from a sim-time timer, so a driving mode asked for then has the watchdog brake and
         # the session time out before the first frame (a fresh clone's plan_and_drive.test)
         if self.node_params.initial_mode and not self.initial_sent and rospy.get_time() > 0.0:
             self.initial_sent = True
-            self._in_background(self._request_mode, P.MODE_BY_NAME[self.node_params.initial_mode])
+            self._in_background(self._request_mode, protocol.MODE_BY_NAME[self.node_params.initial_mode])
 
-    def _on_ack(self, ack: P.Ack) -> None:
+    def _on_ack(self, ack: protocol.Ack) -> None:
         self.mode = ack.mode
-        if ack.acked_type == P.Setpoint.TYPE and ack.status not in (P.OK,):
+        if ack.acked_type == protocol.Setpoint.TYPE and ack.status not in (protocol.OK,):
             self.rejected[ack.status] = self.rejected.get(ack.status, 0) + 1
-            rospy.logwarn_throttle(2.0, "PLC: setpoint %s (mode %s)", P.STATUS_NAMES.get(ack.status, ack.status),
-                                   P.mode_name(ack.mode))
+            rospy.logwarn_throttle(2.0, "PLC: setpoint %s (mode %s)", protocol.STATUS_NAMES.get(ack.status, ack.status),
+                                   protocol.mode_name(ack.mode))
 
     # ------------------------------------------------------------- setpoints
     def _on_setpoint(self, msg: Setpoint, source: int) -> None:
         if not all(math.isfinite(v) for v in (msg.speed, msg.handlebar, msg.brake)):
             self.bad_input += 1
             rospy.logwarn_throttle(2.0, "dropped a %s setpoint with a value that is not a finite number "
-                                   "(speed %r, handlebar %r, brake %r)", P.SOURCE_NAMES[source], msg.speed,
+                                   "(speed %r, handlebar %r, brake %r)", protocol.SOURCE_NAMES[source], msg.speed,
                                    msg.handlebar, msg.brake)
             return
         now = rospy.get_time()
@@ -200,8 +200,8 @@ class PlcClientNode:
                     # .ros.rospy_mends mends)
                     sub = self.setpoint_subs[source]
                     rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop "
-                                           "(connected to %d publishers of %s)", P.SOURCE_NAMES[source],
-                                           self.p.setpoint_timeout, P.mode_name(mode), sub.get_num_connections(),
+                                           "(connected to %d publishers of %s)", protocol.SOURCE_NAMES[source],
+                                           self.p.setpoint_timeout, protocol.mode_name(mode), sub.get_num_connections(),
                                            sub.resolved_name)
 
     def _publish_link_down(self) -> None:
@@ -219,7 +219,7 @@ class PlcClientNode:
         # What is known without a session: the PLC is braking to SAFE (or in HALT), whatever it
         # was last seen in; the next session's first state says for sure
         self.mode = m.mode = mode_without_session(self.mode)
-        m.faults = self.faults | P.FAULT_LINK
+        m.faults = self.faults | protocol.FAULT_LINK
         publish(self.pub_state, m)
 
     # ------------------------------------------------------------ interlocks
@@ -240,7 +240,7 @@ class PlcClientNode:
         if 0.0 <= now - getattr(self, "_interlock_stop", -1e9) < 0.2:
             return
         self._interlock_stop = now
-        self._in_background(self._request_mode, P.MODE_SAFE)
+        self._in_background(self._request_mode, protocol.MODE_SAFE)
 
     def _in_background(self, fn, *args) -> None:
         """``fn(*args)`` on a thread of its own; in lockstep at once, inside the round (the
@@ -255,18 +255,18 @@ class PlcClientNode:
         """Ask the PLC for ``mode``: (accepted, text, the PLC's mode after the request)."""
         if mode in DRIVING and self.interlocks:
             text = "; ".join(f"{src}: {why}" for src, why in self.interlocks.items())
-            msg = f"{P.mode_name(mode)} refused: interlock active ({text})"
+            msg = f"{protocol.mode_name(mode)} refused: interlock active ({text})"
             rospy.logwarn(msg)
             return False, msg, max(self.mode, 0)
-        ack, error = self._ask(P.ModeRequest(mode))
+        ack, error = self._ask(protocol.ModeRequest(mode))
         if ack is None:
             return False, error, max(self.mode, 0)
-        if ack.status != P.OK:
-            msg = f"PLC refused {P.mode_name(mode)} in {P.mode_name(ack.mode)}: {P.STATUS_NAMES.get(ack.status)}"
-            if ack.status == P.NOT_ACKNOWLEDGED:
-                msg += f" ({P.fault_names(self.faults & LATCHED)}): once the vehicle stands, call " \
+        if ack.status != protocol.OK:
+            msg = f"PLC refused {protocol.mode_name(mode)} in {protocol.mode_name(ack.mode)}: {protocol.STATUS_NAMES.get(ack.status)}"
+            if ack.status == protocol.NOT_ACKNOWLEDGED:
+                msg += f" ({protocol.fault_names(self.faults & LATCHED)}): once the vehicle stands, call " \
                        f"{rospy.resolve_name('~acknowledge')}"
-            elif ack.status == P.NOT_AT_STANDSTILL:
+            elif ack.status == protocol.NOT_AT_STANDSTILL:
                 msg += " (the wheel and the PLC's accelerometer at rest for its hold time): try again once it stands"
             rospy.logwarn(msg)
             return False, msg, ack.mode
@@ -274,10 +274,10 @@ class PlcClientNode:
         # not from its next state frame (up to 20 ms later, and the service's caller
         # must read the mode it asked for).
         self.mode = ack.mode
-        rospy.loginfo("PLC mode %s", P.mode_name(ack.mode))
-        return True, f"mode {P.mode_name(ack.mode)}", ack.mode
+        rospy.loginfo("PLC mode %s", protocol.mode_name(ack.mode))
+        return True, f"mode {protocol.mode_name(ack.mode)}", ack.mode
 
-    def _ask(self, msg: P.Message):
+    def _ask(self, msg: protocol.Message):
         """Send ``msg`` and wait for its ACK: (ack, "") or (None, why not)."""
         event = threading.Event()
         answer = []
@@ -292,20 +292,20 @@ class PlcClientNode:
         """The operator's reset after a stop for a fault (WATCHDOG, LINK): the PLC takes it at a
         verified standstill only; a driving mode can be requested again after it."""
         latched = self.faults & LATCHED
-        ack, error = self._ask(P.Reset(LATCHED))
+        ack, error = self._ask(protocol.Reset(LATCHED))
         if ack is None:
             return TriggerResponse(False, error)
-        if ack.status != P.OK:
-            msg = f"PLC refused to acknowledge {P.fault_names(latched)}: {P.STATUS_NAMES.get(ack.status)}"
+        if ack.status != protocol.OK:
+            msg = f"PLC refused to acknowledge {protocol.fault_names(latched)}: {protocol.STATUS_NAMES.get(ack.status)}"
             rospy.logwarn(msg)
             return TriggerResponse(False, msg)
         self.faults &= ~LATCHED
-        rospy.loginfo("PLC faults acknowledged (%s)", P.fault_names(latched))
-        return TriggerResponse(True, f"acknowledged {P.fault_names(latched)}; mode {P.mode_name(ack.mode)}")
+        rospy.loginfo("PLC faults acknowledged (%s)", protocol.fault_names(latched))
+        return TriggerResponse(True, f"acknowledged {protocol.fault_names(latched)}; mode {protocol.mode_name(ack.mode)}")
 
     def _srv_set_mode(self, req) -> SetModeResponse:
-        if req.mode not in P.MODE_NAMES:
-            return SetModeResponse(False, f"unknown mode {req.mode}; modes: {P.MODE_NAMES}", max(self.mode, 0))
+        if req.mode not in protocol.MODE_NAMES:
+            return SetModeResponse(False, f"unknown mode {req.mode}; modes: {protocol.MODE_NAMES}", max(self.mode, 0))
         return SetModeResponse(*self._request_mode(req.mode))
 
     # ----------------------------------------------------------- diagnostics
@@ -316,11 +316,11 @@ class PlcClientNode:
         elif self.interlocks:
             stat.summary(DiagnosticStatus.WARN, f"interlocked: {'; '.join(self.interlocks.values())}")
         elif any(self.mux.stale[src] and self.mux.accepts(self.mode, src) for src in self.mux.stale):
-            stat.summary(DiagnosticStatus.WARN, f"mode {P.mode_name(self.mode)}: setpoints stale, sending stops")
+            stat.summary(DiagnosticStatus.WARN, f"mode {protocol.mode_name(self.mode)}: setpoints stale, sending stops")
         else:
-            stat.summary(DiagnosticStatus.OK, f"connected, mode {P.mode_name(self.mode)}")
+            stat.summary(DiagnosticStatus.OK, f"connected, mode {protocol.mode_name(self.mode)}")
         p50, p99, p100 = link.rtt_percentiles(50, 99, 100)
-        for key, value in (("address", f"{link.host}:{link.port}"), ("mode", P.mode_name(self.mode)),
+        for key, value in (("address", f"{link.host}:{link.port}"), ("mode", protocol.mode_name(self.mode)),
                            ("faults", str(self.faults)), ("rtt p50 [ms]", f"{p50 * 1e3:.3f}"),
                            ("rtt p99 [ms]", f"{p99 * 1e3:.3f}"), ("rtt max [ms]", f"{p100 * 1e3:.3f}"),
                            ("rtt samples", str(len(link.rtts))), ("frames sent", str(s.frames_sent)),

@@ -80,11 +80,11 @@ from quadrivio_runtime.params import (fatal, node_params, private_params, run_se
 from quadrivio_description.urdf import build_urdf
 from quadrivio_navigation.maps import resolve_map_file
 from quadrivio_plc.msg import Setpoint
-from quadrivio_plc import protocol as P
+from quadrivio_plc import protocol
 from quadrivio_sim.msg import RawGps
 from quadrivio_sim.srv import Step, StepResponse
 
-from . import converters as C
+from . import converters
 from quadrivio_runtime.clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
 from ..actors import load_actors
@@ -186,10 +186,10 @@ class SimNode:
             rospy.loginfo("driving the PLC from %s (%.1f s of setpoints)", self.node_params.script_file, self.sim.script.end)
         plc = self.sim_params.plc
         try:
-            key = P.ensure_key(plc.key_file)
-        except (P.KeyFileError, OSError) as exc:
+            key = protocol.ensure_key(plc.key_file)
+        except (protocol.KeyFileError, OSError) as exc:
             fatal(f"the emulated PLC has no usable key: {exc}")
-        for warning in P.key_warnings(plc.key_file, key):
+        for warning in protocol.key_warnings(plc.key_file, key):
             rospy.logwarn(warning)
         try:
             self.server = PlcServer(self.sim.plc, plc.host, plc.port, lambda: self.sim.t, self._log, key=key)
@@ -249,7 +249,7 @@ class SimNode:
                                             queue_size=2) for f in self.pub_image}
         self.baseline = self._stereo_baseline()
         self.tf = tf2_ros.TransformBroadcaster() if self.node_params.tf_mode != "none" else None
-        self.frames = C.Frames(map=self.node_params.map_frame, base=self.node_params.base_frame,
+        self.frames = converters.Frames(map=self.node_params.map_frame, base=self.node_params.base_frame,
                                ground_truth_child=(self.node_params.gt_frame if self.node_params.tf_mode == "ground_truth_frame"
                                                    else self.node_params.base_frame),
                                imu=self.node_params.imu_frame, mag=self.node_params.mag_frame)
@@ -344,13 +344,13 @@ class SimNode:
         kind = (topic, header.get("md5sum"))
         stamped = self.watched_stamped.get(kind)
         if stamped is None:  # once per topic and type, not per message (the definition is kilobytes)
-            stamped = self.watched_stamped[kind] = C.starts_with_header(header.get("message_definition", ""))
+            stamped = self.watched_stamped[kind] = converters.starts_with_header(header.get("message_definition", ""))
         if not stamped:
             rospy.logerr_throttle(10.0, "~stale_slowdown: %s is %s, not a stamped message (a Header first): "
                                         "not watched", topic, header.get("type", "of an unknown type"))
             return
         try:
-            secs, nsecs = C.header_stamp(msg._buff)
+            secs, nsecs = converters.header_stamp(msg._buff)
         except ValueError as exc:
             rospy.logerr_throttle(10.0, "~stale_slowdown: %s on %s: not watched", exc, topic)
             return
@@ -450,7 +450,7 @@ class SimNode:
             sp, self.debug_sp = self.debug_sp, None
         if sp is not None:
             self.sim.plc.force_auto(self.sim.t)
-            self.sim.plc.setpoint(P.SOURCE_AUTO, sp.speed, sp.handlebar, sp.brake)
+            self.sim.plc.setpoint(protocol.SOURCE_AUTO, sp.speed, sp.handlebar, sp.brake)
         client = self.server.connected
         for name, sample in self.sim.step():
             self._publish(name, sample)
@@ -464,7 +464,7 @@ class SimNode:
                 self.lockstep.settle(self.sim.t)
 
     def _publish_clock(self) -> None:
-        stamp = C.stamp(self.sim.t)
+        stamp = converters.stamp(self.sim.t)
         set_own_time(stamp)
         self.pub_clock.publish(Clock(clock=stamp))
 
@@ -474,28 +474,28 @@ class SimNode:
         if name == "plc_state":
             self.server.send_state(s)
         elif name == "ground_truth":
-            odom, tf = C.ground_truth(s, f)
+            odom, tf = converters.ground_truth(s, f)
             self.pub_gt.publish(odom)
             if self.tf is not None:
                 self.tf.sendTransform(tf)
         elif name == "imu":
-            self.pub_imu.publish(C.imu(s, f))
+            self.pub_imu.publish(converters.imu(s, f))
         elif name == "gps":
-            self.pub_gps.publish(C.gps(s, f))
+            self.pub_gps.publish(converters.gps(s, f))
         elif name == "mag":
-            self.pub_mag.publish(C.mag(s, f))
+            self.pub_mag.publish(converters.mag(s, f))
         elif name == "scan":
-            self.pub_scan[s.frame].publish(C.scan(s))
+            self.pub_scan[s.frame].publish(converters.scan(s))
         elif name == "joint_states":
-            self.pub_joints.publish(C.joints(s))
+            self.pub_joints.publish(converters.joints(s))
         elif name == "actors":
-            self.pub_actors.publish(C.actors(s, f.map, self.sim.t))
+            self.pub_actors.publish(converters.actors(s, f.map, self.sim.t))
         elif name == "contact":
-            self.pub_contacts.publish(C.contact(s, f.map))
+            self.pub_contacts.publish(converters.contact(s, f.map))
             rospy.logwarn("contact: the vehicle touched %s (%s) at %.2f m/s, t = %.2f s", s.body, s.kind, s.speed,
                           s.stamp)
         elif name == "image":
-            img, info = C.image(s, self.baseline, s.frame == self.sim_params.sensors.cameras.frames[-1])
+            img, info = converters.image(s, self.baseline, s.frame == self.sim_params.sensors.cameras.frames[-1])
             self.pub_image[s.frame].publish(img)
             self.pub_info[s.frame].publish(info)
 
@@ -536,7 +536,7 @@ class SimNode:
         plc = self.sim.plc
         level = DiagnosticStatus.OK if self.server.connected else DiagnosticStatus.WARN
         stat.summary(level, f"{'client ' + self.server.peer if self.server.connected else 'no client'}, "
-                            f"mode {P.mode_name(plc.mode)}")
+                            f"mode {protocol.mode_name(plc.mode)}")
         st = self.server.stats
         stat.add("faults", str(plc.faults))
         stat.add("sessions", str(st.sessions))
