@@ -26,14 +26,11 @@ releases the GIL, a sleep, a wait for a clock tick) now delays the others of its
 process, and one waiting for a message of the same process would wait for good. So
 :func:`install` is for nodes whose callbacks are short and never wait.
 
-Measured (2026-11-26, alternated runs in one spell): the sensor adapters, whose inputs
-all come from the simulator's step in one burst, used 0.041-0.044 of a core instead of
-0.050-0.053 (``bench_sensors``, three pairs; futex calls 34 a second instead of 2039),
-and 0.059-0.060 instead of 0.062-0.067 in the closed loop at factor 1 (``bench_cpu``'s
-run, two pairs). The follower, the roll-over monitor and localization, whose inputs
-come from different processes at different moments (nothing to contend for the GIL),
-did not gain (follower 0.044-0.046 against 0.040-0.041, roll-over 0.038-0.041 against
-0.036-0.041, localization equal): they keep rospy's threads.
+Why only some nodes use it: the sensor adapters, whose inputs all come from the
+simulator's step in one burst, spend about a fifth less CPU with it (``bench_sensors``);
+nodes whose inputs come from different processes at different moments (the follower,
+the roll-over monitor, localization) did not gain, and keep rospy's threads. The
+measurements: ``bench/HISTORY.md`` ("One receiving thread").
 
 ``QUADRIVIO_RECEIVER=0`` in a node's environment keeps rospy's thread per connection
 (A/B measurements, or to rule this module out).
