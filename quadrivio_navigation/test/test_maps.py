@@ -202,3 +202,69 @@ def test_scenario_maps_are_up_to_date():
     for name, make in mod.MAPS.items():
         stored = load_map(os.path.normpath(os.path.join(root, "scenarios", "maps", f"{name}.yaml")))
         assert np.array_equal(stored.data, make().data), name
+
+
+def hillshade_with_trees(rng, size=120, trees=40):
+    """An RGBA hillshade (greys 150-230, opaque) with black trees: the original vehicle's maps."""
+    yy, xx = np.mgrid[0:size, 0:size]
+    grey = 190 + 40 * np.sin(xx / 9.0) * np.cos(yy / 13.0)
+    px = np.zeros((size, size, 4))
+    px[..., 0] = px[..., 1] = px[..., 2] = grey
+    px[..., 3] = 255
+    for _ in range(trees):
+        r, c = rng.integers(2, size - 3, 2)
+        px[r - 1:r + 2, c - 1:c + 2, :3] = 0
+    return px
+
+
+def test_a_misread_rgba_hillshade_warns_and_says_what_it_would_hold_otherwise(tmp_path):
+    """Thresholds that look ordinary (0.9 / 0.8) with the alpha channel averaged in (map_server's
+    trinary rule): black scores (255 - 255/4) / 255 = 0.75 and every cell is free. Loading says
+    so, names the mode, the thresholds and negate, and what the image holds read otherwise."""
+    px = hillshade_with_trees(np.random.default_rng(3))
+    grid = load_map(write(tmp_path, px, "RGBA", occupied_thresh=0.9, free_thresh=0.8))
+    assert (grid.data != OCCUPIED).all()  # read as map_server reads it
+    assert "occupied 0 %" in grid.summary and "mode trinary" in grid.summary
+    assert len(grid.warnings) == 1
+    w = grid.warnings[0]
+    assert "likely misread" in w and "no cell is occupied" in w and "darkest pixels come out free" in w
+    assert "occupied_thresh 0.9" in w and "free_thresh 0.8" in w and "negate 0" in w and "alpha channel" in w
+    assert "without the alpha channel in the average (mode: scale) occupied 2 %" in w or \
+        "without the alpha channel in the average (mode: scale) occupied 3 %" in w, w
+    # read without the alpha channel, the same image holds its trees and loads without a warning
+    ok = load_map(write(tmp_path, px, "RGBA", occupied_thresh=0.9, free_thresh=0.8, mode="scale"))
+    assert (ok.data == OCCUPIED).sum() == (px[..., 0] == 0).sum() and ok.warnings == ()
+
+
+def test_an_ordinary_map_says_what_it_holds_without_warnings(tmp_path):
+    px = np.full((20, 30), 255)
+    px[5:8, 10:12] = 0
+    grid = load_map(write(tmp_path, px))
+    assert grid.warnings == ()
+    assert grid.summary.endswith("(mode trinary, occupied_thresh 0.65, free_thresh 0.196, negate 0)")
+    assert "30 x 20 cells at 0.5 m: occupied 1 %, free 99 %, unknown 0 %" in grid.summary
+
+
+@pytest.mark.parametrize("pixels, needle", [(np.full((10, 10), 255), "no cell is occupied"),
+                                            (np.full((10, 10), 128), "every cell is unknown")])
+def test_an_empty_or_unknown_map_warns(tmp_path, pixels, needle):
+    grid = load_map(write(tmp_path, pixels))
+    assert len(grid.warnings) == 1 and needle in grid.warnings[0]
+
+
+
+def test_plan_says_the_map_warning_on_its_output(tmp_path, capsys):
+    """`plan` on a misread map: the warning on stderr, in plan.json and on plan.png (drawn)."""
+    import json
+
+    from quadrivio_navigation import plan_cli
+
+    px = hillshade_with_trees(np.random.default_rng(5), size=60, trees=10)
+    path = write(tmp_path, px, "RGBA", occupied_thresh=0.9, free_thresh=0.8, resolution=1.0, origin=[0.0, 0.0, 0.0])
+    out = tmp_path / "out"
+    plan_cli.main([path, "--start", "5,5,0", "--goal", "45,45,0", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert "WARNING: map" in err and "likely misread" in err
+    info = json.loads((out / "plan.json").read_text())
+    assert len(info["map_warnings"]) == 1 and "occupied 0 %" in info["map_summary"]
+    assert (out / "plan.png").stat().st_size > 10_000

@@ -24,6 +24,13 @@ colour channels, and in trinary mode over the alpha channel too (map_server's ow
 rule, kept so that a map behaves here as it does under map_server). So an aerial or
 hillshade image with obstacles painted black works with suitable thresholds.
 
+Loading says what a map holds (occupied, free, unknown fractions: ``OccupancyGrid.summary``)
+and warns when it is likely misread (``warnings``: no occupied cell, every cell unknown, or
+the image's darkest pixels coming out free, as an RGBA hillshade does in trinary mode with
+thresholds of 0.9 / 0.8), naming the mode, thresholds and negate and what the image would
+hold read otherwise. ``plan``, the map server, the planner (in every status) and the
+simulator say it.
+
 The grid's row 0 is the image's bottom row (``y`` grows with the row), as in
 ``nav_msgs/OccupancyGrid``. ROS-free.
 """
@@ -72,6 +79,8 @@ class OccupancyGrid:
     data: np.ndarray  # int8, (height, width)
     resolution: float  # [m]
     origin: Tuple[float, float, float] = (0.0, 0.0, 0.0)  # [m, m, rad]
+    summary: str = ""  # what the map holds, as load_map read it ("" for a grid made otherwise)
+    warnings: Tuple[str, ...] = ()  # what load_map found questionable: an empty map, a misread image
 
     @property
     def height(self) -> int:
@@ -145,6 +154,7 @@ class MapMetadata:
     free_thresh: float
     negate: bool
     mode: str
+    path: str = ""  # the YAML file
 
 
 MAP_KEYS = ("image", "resolution", "origin", "occupied_thresh", "free_thresh", "negate", "mode")
@@ -184,7 +194,7 @@ def read_metadata(path: str) -> MapMetadata:
     if mode not in MODES:
         raise MapError(f"map {path}: 'mode' = {mode!r} is not one of {', '.join(MODES)}")
     return MapMetadata(image, resolution, (float(origin[0]), float(origin[1]), float(origin[2])), occ, free,
-                       bool(negate), mode)
+                       bool(negate), mode, path)
 
 
 # -------------------------------------------------------------------------- image
@@ -254,14 +264,77 @@ def occupancy_from_pixels(pixels: np.ndarray, has_alpha: bool, mode: str, negate
     return np.flipud(out.astype(np.int8))
 
 
+def fractions(data: np.ndarray) -> Tuple[float, float, float]:
+    """(occupied, free, unknown) fractions of a grid's cells (occupied: 65 and above)."""
+    n = max(1, data.size)
+    return (float(np.count_nonzero(data >= 65)) / n, float(np.count_nonzero(data == FREE)) / n,
+            float(np.count_nonzero(data == UNKNOWN)) / n)
+
+
+def _pct(f: float) -> str:
+    return f"{100.0 * f:.1f} %" if 0.0 < f < 0.001 or f > 0.999 and f < 1.0 else f"{100.0 * f:.0f} %"
+
+
+def map_report(meta: "MapMetadata", pixels: np.ndarray, has_alpha: bool, data: np.ndarray) -> Tuple[str, Tuple[str, ...]]:
+    """What a map holds (one line), and warnings when it is likely misread: no occupied cell,
+    every cell unknown, or the image's darkest pixels (its brightest with negate) coming out
+    free; each names the mode, the thresholds, negate, and what the image would give read
+    otherwise (the alpha channel left out of the average, negate flipped)."""
+    occ, free, unk = fractions(data)
+    how = (f"mode {meta.mode}, occupied_thresh {meta.occupied_thresh:g}, free_thresh {meta.free_thresh:g}, "
+           f"negate {int(meta.negate)}{', an alpha channel averaged in' if has_alpha and meta.mode == 'trinary' else ''}")
+    summary = (f"map {meta.path}: {data.shape[1]} x {data.shape[0]} cells at {meta.resolution:g} m: occupied "
+               f"{_pct(occ)}, free {_pct(free)}, unknown {_pct(unk)} ({how})")
+    if meta.mode == "raw":
+        return summary, ()
+    problems = []
+    if occ == 0.0:
+        problems.append("no cell is occupied")
+    if unk >= 0.999:
+        problems.append("every cell is unknown")
+    n = pixels.shape[2]
+    colour = (pixels[..., :n - 1] if has_alpha else pixels).mean(axis=2)
+    if meta.negate:
+        colour = 255.0 - colour
+    darkest = colour <= float(colour.min()) + 2.0
+    if colour.max() - colour.min() > 16.0 and np.any(np.flipud(data)[darkest] == FREE):
+        problems.append(f"the image's {'brightest' if meta.negate else 'darkest'} pixels come out free")
+    if not problems:
+        return summary, ()
+    others = []
+    if has_alpha and meta.mode == "trinary":
+        alt = occupancy_from_pixels(pixels, has_alpha, "scale", meta.negate, meta.occupied_thresh, meta.free_thresh)
+        o, f, u = fractions(np.where(alt >= 65, OCCUPIED, np.where(alt == FREE, FREE, UNKNOWN)))
+        others.append(f"without the alpha channel in the average (mode: scale) occupied {_pct(o)}, free {_pct(f)}")
+    alt = occupancy_from_pixels(pixels, has_alpha, meta.mode, not meta.negate, meta.occupied_thresh, meta.free_thresh)
+    o, f, u = fractions(alt)
+    others.append(f"with negate {int(not meta.negate)} occupied {_pct(o)}, free {_pct(f)}")
+    warning = (f"map {meta.path} is likely misread: {' and '.join(problems)} (occupied {_pct(occ)}, free {_pct(free)}, "
+               f"unknown {_pct(unk)}; {how}). Read otherwise: {'; '.join(others)}")
+    return summary, (warning,)
+
+
+def grid_warnings(data: np.ndarray, what: str) -> Tuple[str, ...]:
+    """For a grid that came without its image (a nav_msgs/OccupancyGrid): no occupied cell,
+    or every cell unknown."""
+    occ, free, unk = fractions(data)
+    problems = (["no cell is occupied"] if occ == 0.0 else []) + (["every cell is unknown"] if unk >= 0.999 else [])
+    if not problems:
+        return ()
+    return (f"{what} is likely misread or empty: {' and '.join(problems)} (occupied {_pct(occ)}, free {_pct(free)}, "
+            f"unknown {_pct(unk)}); check the map's mode, thresholds and negate",)
+
+
 def load_map(path: str) -> OccupancyGrid:
     """A map_server map (YAML and image) as an :class:`OccupancyGrid`; :class:`MapError`
-    names the file and what is wrong with it."""
+    names the file and what is wrong with it. The grid's ``summary`` says what it holds and
+    its ``warnings`` what looks misread (callers print or log them: see :func:`map_report`)."""
     meta = read_metadata(path)
     pixels, has_alpha = read_image(meta.image)
     data = occupancy_from_pixels(pixels, has_alpha, meta.mode, meta.negate, meta.occupied_thresh, meta.free_thresh,
                                  f"map image {meta.image}")
-    return OccupancyGrid(np.ascontiguousarray(data), meta.resolution, meta.origin)
+    summary, warnings = map_report(meta, pixels, has_alpha, data)
+    return OccupancyGrid(np.ascontiguousarray(data), meta.resolution, meta.origin, summary, warnings)
 
 
 def resolve_map_file(file: str, scenario_file: str = "") -> str:

@@ -148,6 +148,11 @@ def plot(path: str, planner: Planner, r: PlanResult, start, goal, title: str) ->
     status = (f"{r.planner}: {r.length:.1f} m, cost {r.cost:.1f}, first solution {1e3 * r.time_to_first:.0f} ms, "
               f"{r.cusps} cusp(s)" if r.ok else f"{r.planner}: FAILED: {r.reason}")
     ax.set_title(f"{title}\n{status}", fontsize=9)
+    if grid.warnings:  # a map read as empty or misread says so on the picture itself
+        import textwrap
+
+        ax.text(0.01, 0.01, "\n".join(textwrap.wrap("MAP WARNING: " + grid.warnings[0], 110)), transform=ax.transAxes,
+                fontsize=7, color="darkred", va="bottom", bbox=dict(fc="white", ec="darkred", alpha=0.85))
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
@@ -192,7 +197,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         params = load_params(args.params, over)
         vehicle = load_vehicle(args.vehicle)
         grid = load_map(args.map)
-        print(f"[plan] map {args.map}: {grid.width} x {grid.height} cells of {grid.resolution} m", flush=True)
+        print(f"[plan] {grid.summary}", flush=True)
+        for warning in grid.warnings:
+            print(f"[plan] WARNING: {warning}", file=sys.stderr, flush=True)
         planner = Planner(grid, vehicle, params)
         r = planner.plan(start, goal, args.budget)
     except (ConfigError, OSError) as exc:
@@ -201,6 +208,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     os.makedirs(args.out, exist_ok=True)
     info = summary(r, start, goal)
     info["map"] = os.path.abspath(args.map)
+    info["map_summary"], info["map_warnings"] = grid.summary, list(grid.warnings)
     _atomic(os.path.join(args.out, "plan.json"), lambda tmp: open(tmp, "w").write(json.dumps(info, indent=2) + "\n"))
     if r.ok:
         write_csv(os.path.join(args.out, "path.csv"), r)

@@ -131,9 +131,11 @@ class Simulator:
         self.dt = params.physics.dt
         self.rng = np.random.default_rng(params.seed)
         blocks = []
+        self.map_report: Tuple[str, ...] = ()  # the map's summary and warnings (the node logs them)
         if params.map.file:
             grid = load_map(params.map.file)  # MapError names the file and the problem
             blocks = obstacles_from_grid(grid, params.map.occupied, params.map.tree_size)
+            self.map_report = (grid.summary,) + tuple(grid.warnings)
         self.map_blocks = blocks
         self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
                            params.spawn, blocks, params.map.obstacle_height, params.actors)

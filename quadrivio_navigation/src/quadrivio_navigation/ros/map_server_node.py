@@ -59,6 +59,9 @@ class MapServer:
             grid = load_map(path)
         except MapError as exc:
             fatal(f"cannot load the map: {exc}")
+        rospy.loginfo("%s", grid.summary)
+        for warning in grid.warnings:
+            rospy.logwarn("%s", warning)
         stamp = rospy.Time.now()
         self.msg = grid_msg(grid, self.p.frame_id, stamp)
         self.pub = rospy.Publisher("map", OccupancyGrid, queue_size=1, latch=True)

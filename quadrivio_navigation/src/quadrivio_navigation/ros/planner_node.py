@@ -53,7 +53,7 @@ from quadrivio_runtime.params import (fatal, node_params, private_params, split_
                                              with_scenario)
 from quadrivio_runtime.timer import guarded_timer, input_guard, publish
 
-from ..maps import MapError, OccupancyGrid as Grid, load_map
+from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult
 from ..replanning import blocked_reason, known_distance, merge_local
@@ -106,6 +106,7 @@ class PlannerNode:
         self.jobs: "queue.Queue[Tuple[str, object]]" = queue.Queue()
         self.cancel = threading.Event()
         self.status = PlannerStatus()
+        self.map_warnings: Tuple[str, ...] = ()  # the map's, said in every status
         self.pub_path: Optional[rospy.Publisher] = None  # advertised at the first path (see _publish_path)
         self.pub_status = rospy.Publisher("planner/status", PlannerStatus, queue_size=5, latch=True)
         self._set_status(PlannerStatus.IDLE, "waiting for a map" if not self.node_params.map_file else "loading the map")
@@ -114,6 +115,7 @@ class PlannerNode:
                 grid = load_map(self.node_params.map_file)
             except MapError as exc:
                 fatal(f"cannot load the map: {exc}")
+            rospy.loginfo("%s", grid.summary)
             self.jobs.put(("map", grid))
         else:
             rospy.Subscriber("map", OccupancyGrid, self._on_map, queue_size=1)
@@ -158,6 +160,7 @@ class PlannerNode:
         except MapError as exc:
             rospy.logerr("ignored a map: %s", exc)
             return
+        grid.warnings = grid_warnings(grid.data, f"the map on {rospy.resolve_name('map')}")
         self.jobs.put(("map", grid))
 
     def _on_odom(self, m: Odometry) -> None:
@@ -221,6 +224,9 @@ class PlannerNode:
                 continue
             try:
                 if kind == "map":
+                    self.map_warnings = tuple(item.warnings)
+                    for warning in self.map_warnings:
+                        rospy.logwarn("planner: %s", warning)
                     self._build(item)
                     if self.goal is not None:
                         self._plan_goal(self.goal)
@@ -400,6 +406,9 @@ class PlannerNode:
         st = PlannerStatus()
         st.header.stamp = rospy.Time.now()
         st.header.frame_id = self.node_params.frame_id
+        if self.map_warnings:  # every status says it while the map is likely misread
+            reason = f"{reason} [map warning: {self.map_warnings[0]}]" if reason else \
+                f"[map warning: {self.map_warnings[0]}]"
         st.state, st.reason = state, reason
         st.planner = self.p.planner
         if start is not None:

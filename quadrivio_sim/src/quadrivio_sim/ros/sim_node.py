@@ -178,6 +178,8 @@ class SimNode:
             self.sim = Simulator(self.sim_params, self.vehicle, actuators, urdf, site_params())
         except ConfigError as exc:
             fatal(f"cannot build the simulation: {exc}")
+        for k, line in enumerate(self.sim.map_report):
+            (rospy.loginfo if k == 0 else rospy.logwarn)("simulator: %s", line)
         if self.node_params.script_file:
             try:
                 self.sim.script = load_script(self.node_params.script_file)
