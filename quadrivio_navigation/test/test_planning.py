@@ -180,3 +180,50 @@ def test_steep_slopes_are_obstacles_and_slopes_cost():
     assert r.ok, r.reason
     crossing = r.poses[np.argmin(np.abs(r.poses[:, 0] - 10.0))]
     assert abs(crossing[1] - 8.0) < 2.5  # through the notch, not over the ridge
+
+
+def split_yard(gap: float) -> OccupancyGrid:
+    """A 40 m x 20 m yard cut in two by a wall with one opening ``gap`` m wide (0: none)."""
+    cv = Canvas(-20.0, -10.0, 40.0, 20.0, 0.2)
+    if gap > 0:
+        half = 0.5 * (20.0 - gap)
+        cv.box(0.0, -10.0 + 0.5 * half, 0.4, half)
+        cv.box(0.0, 10.0 - 0.5 * half, 0.4, half)
+    else:
+        cv.box(0.0, 0.0, 0.4, 20.0)
+    cv.border(0.4)
+    return cv.grid()
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+@pytest.mark.parametrize("gap", [0.0, 0.9])  # no opening; one narrower than the vehicle (1.2 m + padding)
+def test_a_start_and_goal_in_different_pieces_are_refused_before_any_search(kind, gap):
+    planner = Planner(split_yard(gap), VEHICLE, params(kind, budget=30.0))
+    r = planner.plan((-10.0, 0.0, 0.0), (10.0, 0.0, 0.0))
+    assert not r.ok and "unreachable: start and goal are in different pieces of free space" in r.reason, r.reason
+    assert r.expansions == 0 and r.planning_time < 5.0  # no 30 s search (measured ~ms: bench)
+    labels, n = planner.regions()
+    assert n >= 2
+
+
+@pytest.mark.parametrize("kind", PLANNERS)
+def test_a_wide_enough_opening_joins_the_pieces(kind):
+    planner = Planner(split_yard(4.0), VEHICLE, params(kind, budget=5.0))
+    assert planner.check_connected((-10.0, 0.0, 0.0), (10.0, 0.0, 0.0)) == ""
+    r = planner.plan((-10.0, 0.0, 0.0), (10.0, 0.0, 0.0))
+    assert r.ok, r.reason
+    assert collision_free(planner, r.poses)
+
+
+def test_the_pieces_never_split_what_a_planner_connects():
+    """A superset: on the scattered-obstacle map, every pair the lattice connects is in one piece."""
+    grid = scattered(size=100.0, res=0.2, seed=4, rocks=60, buildings=8)
+    planner = Planner(grid, VEHICLE, params("lattice", budget=2.0))
+    found = 0
+    for start, goal in random_pairs(planner, 8, 11):
+        r = planner.plan(start, goal)
+        if r.ok:
+            found += 1
+            a = planner._region_of(tuple(r.poses[0]))
+            assert all(planner._region_of(tuple(p)) == a for p in r.poses[::5])
+    assert found >= 4

@@ -8,7 +8,10 @@ path in the map frame with the driving direction of every step.
 
 Poses are ``(x, y, yaw)`` in the map frame [m, m, rad]. Before searching, the start and
 the goal are checked: outside the map, in collision (with the cell that is hit) and
-unreachable give a result with ``ok = False`` and a reason naming the problem.
+unreachable give a result with ``ok = False`` and a reason naming the problem. Unreachable
+is decided for both planners before any search, in milliseconds: the pieces of free space
+a circle of the footprint's width can move in (:meth:`Planner.regions`), start and goal in
+different ones.
 
 A :class:`Planner` keeps what depends only on the map (cost grid, primitives and their
 swept cells, the heuristic's graph) between plans; :func:`plan` builds one per call.
@@ -109,6 +112,7 @@ class Planner:
         self.cost = CostGrid(grid, p.cost, slope, self.max_slope)
         self._lattice: Optional[LatticePlanner] = None
         self._ompl = None
+        self._regions: Optional[Tuple[np.ndarray, int]] = None
         self.build_time = 0.0
 
     # ---------------------------------------------------------------- planners
@@ -168,6 +172,50 @@ class Planner:
                     f"{int(hit.sum())} blocked cells, e.g. an {kind} cell at ({cx:.2f}, {cy:.2f})")
         return ""
 
+    def regions(self) -> Tuple[np.ndarray, int]:
+        """(labels, count) of the pieces of free space the vehicle's body can move in: the
+        cells where a circle of half the footprint's width (padding included) may be
+        centred, 8-connected. A superset: a cell is in when a point of it could hold the
+        circle (its centre within half a cell diagonal), so two poses in different pieces
+        are certainly not connected by any path of any planner."""
+        if self._regions is None:
+            from scipy import ndimage
+
+            t = time.perf_counter()
+            res = self.grid.resolution
+            free = self.cost.cost != LETHAL
+            dist = ndimage.distance_transform_edt(free) * res  # cell centre to the nearest blocked cell's
+            radius = 0.5 * (self.footprint.left + self.footprint.right)
+            room = free & (dist > radius - 0.5 * math.sqrt(2.0) * res)
+            labels, n = ndimage.label(room, structure=np.ones((3, 3), dtype=bool))
+            self._regions = (labels, int(n))
+            self.build_time += time.perf_counter() - t
+        return self._regions
+
+    def _region_of(self, pose: Pose) -> int:
+        """The free-space piece of the footprint's centre at ``pose`` (0: none found)."""
+        x, y, yaw = pose
+        d = 0.5 * (self.footprint.front - self.footprint.rear)  # the centre, ahead of base_link
+        gx, gy, _ = self.grid.to_grid_frame(x + d * math.cos(yaw), y + d * math.sin(yaw))
+        labels, _ = self.regions()
+        r, c = int(math.floor(gy / self.grid.resolution)), int(math.floor(gx / self.grid.resolution))
+        if 0 <= r < labels.shape[0] and 0 <= c < labels.shape[1]:
+            return int(labels[r, c])
+        return 0
+
+    def check_connected(self, start: Pose, goal: Pose) -> str:
+        """'' when start and goal may be connected, else why not (different free-space pieces:
+        no planner can find a path, so none should search its whole budget for one)."""
+        a, b = self._region_of(start), self._region_of(goal)
+        if a == 0 or b == 0 or a == b:
+            return ""
+        labels, n = self.regions()
+        width = self.footprint.left + self.footprint.right
+        return (f"the goal is unreachable: start and goal are in different pieces of free space (the map's free "
+                f"space makes "
+                f"{n} pieces a vehicle {width:.2f} m wide, padding included, can move in; the start's has "
+                f"{int(np.count_nonzero(labels == a))} cells, the goal's {int(np.count_nonzero(labels == b))})")
+
     # -------------------------------------------------------------------- plan
     def plan(self, start: Pose, goal: Pose, budget: Optional[float] = None, planner: Optional[str] = None,
              cancelled: Callable[[], bool] = lambda: False, seed: Optional[int] = None) -> PlanResult:
@@ -178,6 +226,9 @@ class Planner:
             problem = self.check_pose(tuple(map(float, pose)), what)
             if problem:
                 return PlanResult(False, problem, kind, planning_time=time.perf_counter() - t0)
+        problem = self.check_connected(tuple(map(float, start)), tuple(map(float, goal)))
+        if problem:  # in milliseconds, where a search would spend its whole budget
+            return PlanResult(False, problem, kind, planning_time=time.perf_counter() - t0)
         gs = self.grid.to_grid_frame(*start)
         gg = self.grid.to_grid_frame(*goal)
         if kind == "lattice":
