@@ -227,3 +227,24 @@ def test_the_pieces_never_split_what_a_planner_connects():
             a = planner._region_of(tuple(r.poses[0]))
             assert all(planner._region_of(tuple(p)) == a for p in r.poses[::5])
     assert found >= 4
+
+
+def test_the_lattice_plans_from_a_start_just_clear_of_a_block():
+    """On a 1 m map a start 0.21 m clear of a block (padding included) has its lattice state
+    (its cell's centre) half a cell into the block: it used to be snapped there and refused
+    ("every lattice motion from the start was searched") while OMPL planned from it. Now it
+    joins the lattice by a curve from the exact start."""
+    cv = Canvas(-10.0, -10.0, 40.0, 20.0, 1.0)
+    cv.box(5.0, 3.0, 4.0, 2.0)  # a block whose lower edge is at y = 2.0
+    cv.border(1.0)
+    grid = cv.grid()
+    fp = Planner(grid, VEHICLE, params("lattice")).footprint
+    start = (5.3, 2.0 - fp.left - 0.21, 0.0)  # the footprint's left side 0.21 m below the block
+    snapped = (5.5, 1.5, 0.0)  # its cell's centre
+    for kind in PLANNERS:
+        planner = Planner(grid, VEHICLE, params(kind, budget=3.0))
+        assert planner.check_pose(start, "start") == "" and "collision" in planner.check_pose(snapped, "snapped")
+        r = planner.plan(start, (20.0, -5.0, 0.0))
+        assert r.ok, f"{kind}: {r.reason}"
+        assert np.allclose(r.poses[0], start, atol=1e-6), f"{kind} starts at {r.poses[0]}, not {start}"
+        assert collision_free(planner, r.poses)

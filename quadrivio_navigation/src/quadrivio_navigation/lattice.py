@@ -60,6 +60,10 @@ class LatticeParams:
     shot_radius: float = param(12.0, lo=0.0, hi=1000.0, unit="m",
                                doc="try an analytic Reeds-Shepp expansion to the goal within this distance (0: never)")
     shot_every: int = param(4, lo=1, hi=1000, doc="analytic expansion on every n-th expansion within shot_radius")
+    start_connect_radius: float = param(1.0, lo=0.0, hi=10.0, unit="m",
+                                        doc="the exact start joins the lattice states of the cells within this, in its "
+                                            "heading bin and the two beside it, by collision-free curves")
+    start_connectors: int = param(12, lo=1, hi=1000, doc="... at most this many, the shortest curves first")
     nh_radius: float = param(15.0, lo=0.0, hi=1000.0, unit="m",
                              doc="use the obstacle-free non-holonomic distance as heuristic within this distance")
     max_expansions: int = param(0, lo=0, hi=10 ** 9, doc="stop after this many expansions (0: only the time budget); "
@@ -305,6 +309,7 @@ class LatticePlanner:
         start_state = (sc[0] * w + sc[1]) * n + sk
         goal_state = (gc[0] * w + gc[1]) * n + gk
         GOAL = -1  # the exact goal, reached by an analytic expansion or from goal_state
+        START = -3  # the exact start, joined to the lattice states around it
         # reaching the goal's lattice state counts with what it would take to get from
         # there to the exact goal, so that an exact analytic expansion wins a tie
         snap = ((gc[1] + 0.5) * res, (gc[0] + 0.5) * res, TWO_PI * gk / n)
@@ -337,7 +342,47 @@ class LatticePlanner:
             counter += 1
             heapq.heappush(open_heap, (f, counter, s))
 
-        push(start_state)
+        # A start whose own lattice state (its cell's centre, its heading bin) collides joins
+        # the lattice by collision-free curves to the states around it, as the goal does by
+        # analytic expansions: on a 1 m map a start 0.21 m clear of a block (padding
+        # included) was snapped half a cell into it and refused.
+        root = start_state
+        connectors: Dict[int, list] = {}
+        snapped = ((sc[1] + 0.5) * res, (sc[0] + 0.5) * res, thetas[sk])
+        if self.cg.pose_cost(self.fp, *snapped) != LETHAL:  # the start's own state: as the search always did
+            push(start_state)
+        else:
+            root = START
+            g = {START: 0.0}
+            reach = max(1, int(math.ceil(self.p.start_connect_radius / res)))
+            candidates = []
+            for dr in range(-reach, reach + 1):
+                for dc in range(-reach, reach + 1):
+                    if dr * dr + dc * dc > reach * reach:
+                        continue
+                    row, col = sc[0] + dr, sc[1] + dc
+                    if not (0 <= row < self.h and 0 <= col < w):
+                        continue
+                    for dk in (-1, 0, 1):
+                        k = (sk + dk) % n
+                        segs = shortest(tuple(start), ((col + 0.5) * res, (row + 0.5) * res, thetas[k]), r)
+                        candidates.append((curves.path_cost(segs, rc), (row * w + col) * n + k, segs))
+            # the shortest first; checked with the exact footprint (the lattice's own checker is
+            # grown by its binning, which is what made a start this close to a block fail)
+            candidates.sort(key=lambda e: e[0])
+            for _, s2, segs in candidates:
+                c = self._connector_cost(tuple(start), segs)
+                if c is not None:
+                    g[s2] = c
+                    parent[s2] = (START, -3)
+                    connectors[s2] = segs
+                    if len(connectors) >= self.p.start_connectors:
+                        break
+            if not connectors:
+                return fail(f"no drivable path: no collision-free curve joins the start to the lattice within "
+                            f"{self.p.start_connect_radius} m")
+            for s2 in connectors:
+                push(s2)
         flat, wp, pad = self.flat, self.wp, self.pad
         prims = self.prims
         weight = self.cost_weight / 254.0
@@ -425,7 +470,7 @@ class LatticePlanner:
                 lows = [g[s] + hval(s) for s in list(in_open) + list(incons)]
                 bound = min(eps, goal_g() / min(lows)) if lows and min(lows) > 0 else eps
                 best = (goal_g(), bound)
-                best_path = self._extract(parent, shots, g, start_state, GOAL)
+                best_path = self._extract(parent, shots, g, root, GOAL, start, connectors)
                 solutions.append((elapsed, goal_g(), bound, expansions))
             # ImprovePath returns with OPEN left only on a solution or a timeout, so without a
             # solution here the search is exhausted
@@ -483,7 +528,19 @@ class LatticePlanner:
             return None
         return curves.path_cost(segs, float(self.reverse_cost)) * (1.0 + self.cost_weight * worst / 254.0)
 
-    def _extract(self, parent, shots, g, start_state: int, goal: int):
+    def _connector_cost(self, start, segs) -> Optional[float]:
+        """Cost of a curve from the exact start, checked with the exact footprint at every
+        sample (not the lattice's grown templates); None when it collides or leaves the map."""
+        poses, _ = curves.sample(start, segs, self.r, 0.5 * self.res)
+        worst = 0
+        for x, y, th in poses:
+            c = self.cg.pose_cost(self.fp, float(x), float(y), float(th))
+            if c == LETHAL:
+                return None
+            worst = max(worst, c)
+        return curves.path_cost(segs, float(self.reverse_cost)) * (1.0 + self.cost_weight * worst / 254.0)
+
+    def _extract(self, parent, shots, g, start_state: int, goal: int, start=None, connectors=None):
         """The path as edges: (start pose, poses along the edge, directions of its steps, cost)."""
         chain = []
         s = goal
@@ -495,6 +552,10 @@ class LatticePlanner:
         n, res, w = self.n, self.res, self.w
         edges = []
         for p, j, s in chain:
+            if j == -3:  # from the exact start to its first lattice state
+                pp, d = curves.sample(tuple(start), connectors[s], self.r, 0.5 * res)
+                edges.append([pp, np.asarray(d[:-1], dtype=np.int8), g[s]])
+                continue
             cell, k = divmod(p, n)
             row, col = divmod(cell, w)
             x0, y0 = (col + 0.5) * res, (row + 0.5) * res
