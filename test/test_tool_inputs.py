@@ -126,3 +126,39 @@ def test_analyze_exits_non_zero_on_a_bag_without_any_topic_it_reads(tmp_path, ca
     line = _one_clear_line(capsys.readouterr().err)
     assert "holds none of the topics the analysis reads" in line and "/gps/fix" in line and "--map" in line
     assert not out.exists() or not (out / "metrics.json").exists()
+
+
+def _bag_with_field(path, field_x):
+    """A short recording whose magnetometer reads ``field_x`` in its message's tesla field."""
+    with rosbag.Bag(str(path), "w") as bag:
+        for k in range(400):
+            t = rospy.Time(1.0 + 0.01 * k)
+            imu = Imu()
+            imu.header.stamp = t
+            imu.linear_acceleration.z = 9.81
+            bag.write("/imu/data", imu, t)
+            mag = MagneticField()
+            mag.header.stamp, mag.magnetic_field.x = t, field_x
+            bag.write("/imu/mag", mag, t)
+            if k % 20 == 0:
+                fix = NavSatFix()
+                fix.header.stamp, fix.latitude, fix.longitude = t, 45.478, 9.2276
+                fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+                fix.position_covariance = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 4.0]
+                bag.write("/gps/fix", fix, t)
+
+
+@pytest.mark.parametrize("tool", ["replay", "calibrate_mag"])
+def test_a_field_in_the_wrong_unit_is_named_not_a_traceback(tmp_path, capsys, tool):
+    """The issue's recording: an Xsens field normalised to ~0.9, read as tesla (0.9 T): replay
+    died in GTSAM ("Indeterminate linear system") and wrote nothing. Now both tools stop at
+    once with the likely unit mistake named, and write nothing."""
+    bag = tmp_path / "xsens.bag"
+    _bag_with_field(bag, 0.9)
+    out = tmp_path / ("replayed.bag" if tool == "replay" else "mag.yaml")
+    cli = replay_cli if tool == "replay" else calibrate_mag_cli
+    assert cli.main([str(bag), "--out", str(out)] + (["--quiet"] if tool == "replay" else [])) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert "reads a field of 9e+05 uT" in err and "normalised to the local Earth field" in err
+    assert "nothing written" in err and not out.exists()

@@ -30,7 +30,10 @@ from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
 from ..leveling import Leveller
+from .. import sanity
 from ..mag_calibration import MagCalibrationError, MagFit, MagFitParams, fit
+
+SANITY_SAMPLES = 2000  # readings of each kind the unit checks look at (the bag's first)
 
 UT = 1e6
 
@@ -55,6 +58,8 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         use_state = state_topic in have
         leveller = Leveller(vehicle, tilt_tau)
         counts = {"mag": 0, "imu": 0, "state": 0, "used": 0, "bad": 0}
+        strengths: list = []  # [T] the first readings' field strengths, for the unit check
+        forces: list = []  # [m/s^2] the first IMU readings' specific force
         speed = 0.0
         bins: dict = {}
         topics = [mag_topic, imu_topic] + ([state_topic] if use_state else [])
@@ -76,10 +81,14 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
                             continue
                         leveller.add_imu(t, f, g)
                         counts["imu"] += 1
+                        if len(forces) < SANITY_SAMPLES:
+                            forces.append(math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2))
                     else:
                         mf = msg.magnetic_field
                         m = (mf.x, mf.y, mf.z)
                         counts["mag"] += 1
+                        if len(strengths) < SANITY_SAMPLES:
+                            strengths.append(math.sqrt(m[0] ** 2 + m[1] ** 2 + m[2] ** 2))
                         if not all(math.isfinite(v) for v in m) or leveller.t is None:
                             counts["bad"] += 1
                             continue
@@ -93,6 +102,7 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         except rosbag.ROSBagException as exc:
             raise MagCalibrationError(f"{path}: corrupt bag ({exc})") from exc
     counts["moving_filter"] = use_state
+    counts["sanity"] = sanity.check_all(strengths, forces)
     m = np.array([np.mean(v, axis=0) for _, v in sorted(bins.items())]) if bins else np.zeros((0, 2))
     return m, counts
 
@@ -145,6 +155,11 @@ def run(args) -> int:
     print(f"[calibrate_mag] {counts['mag']} magnetometer and {counts['imu']} IMU messages, {counts['state']} "
           f"vehicle states; {counts['used']} readings used" + (" (while moving)" if counts["moving_filter"] else "") +
           (f", {counts['bad']} unusable" if counts["bad"] else ""), flush=True)
+    for level, text in counts["sanity"]:
+        print(f"[calibrate_mag] WARNING: {text}", file=sys.stderr, flush=True)
+    error = sanity.first_error(counts["sanity"])
+    if error:  # a fit to a field 10^4 off would only fail later, far from the cause
+        raise MagCalibrationError(error)
     r = fit(m, field, p)
     source = f"calibrate_mag {os.path.basename(args.bag)} {dt.date.today().isoformat()}"
     data = r.as_priors(source)

@@ -35,6 +35,7 @@ from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 
+from .. import sanity
 from ..smoother import Estimate, Localizer, LocalizerParams
 
 ROLES = ("gps", "imu", "mag", "state")
@@ -124,6 +125,39 @@ def parse(argv: List[str]) -> argparse.Namespace:
     return ap.parse_args(argv)
 
 
+SANITY_SAMPLES = 2000  # readings of each kind the unit checks look at (the bag's first)
+
+
+def check_readings(bag, path: str, topics: Dict[str, str], have, imap) -> list:
+    """:func:`sanity.check_all` on the bag's first magnetometer and IMU readings, converted as
+    the replay converts them."""
+    import genpy
+
+    wanted = {topics[r]: r for r in ("mag", "imu") if topics.get(r) and topics[r] in have}
+    strengths: list = []
+    forces: list = []
+    if not wanted:
+        return []
+    for topic, msg, t in read_messages(bag, path, list(wanted), error=ReplayError):
+        role = wanted[topic]
+        try:
+            if imap is not None:
+                msg = imap.convert(role, msg, t)
+            if role == "mag" and len(strengths) < SANITY_SAMPLES:
+                f = msg.magnetic_field
+                strengths.append(math.sqrt(f.x ** 2 + f.y ** 2 + f.z ** 2))
+            elif role == "imu" and len(forces) < SANITY_SAMPLES:
+                a = msg.linear_acceleration
+                forces.append(math.sqrt(a.x ** 2 + a.y ** 2 + a.z ** 2))
+        except ConfigError as exc:
+            raise ReplayError(str(exc)) from exc
+        except (AttributeError, TypeError, ValueError, genpy.DeserializationError):
+            continue  # the replay itself says which messages are unusable
+        if len(strengths) >= SANITY_SAMPLES and len(forces) >= SANITY_SAMPLES:
+            break
+    return sanity.check_all(strengths, forces)
+
+
 def run(args: argparse.Namespace) -> Dict[str, Any]:
     import genpy
     import rosbag
@@ -161,6 +195,14 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
             missing = [f"{r} ({topics[r]})" for r in ("imu", "state") if topics[r] not in have]
             if missing and not args.quiet:
                 print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
+            # the readings' physical sense first: a unit declared wrong is named here, not by a
+            # GTSAM traceback ("Indeterminate linear system" for a field read as 0.9 T)
+            checks = check_readings(bag, args.bag, topics, have, imap)
+            for _level, text in checks:
+                print(f"[replay] WARNING: {text}", file=sys.stderr)
+            error = sanity.first_error(checks)
+            if error:
+                raise ReplayError(error)
             t_start, t_end = bag.get_start_time(), bag.get_end_time()
             ticker = Ticker(loc, params.rate, t_start)
             last_cal = -math.inf
