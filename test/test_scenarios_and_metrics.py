@@ -173,3 +173,21 @@ def test_bad_vehicle_overrides_name_the_problem(tmp_path, section, message):
     f.write_text(f"name: bad\nvehicle: {section}\n")
     with pytest.raises(ConfigError, match=message):
         load_scenario(str(f))
+
+
+def test_gps_fix_fraction_is_time_with_a_fix_not_messages():
+    """The issue's recording: fixes at 1 Hz, then 14 s and 27 s with no message at all. Counted
+    by messages every one was a fix (1.0); by time, 41 s of 100 had none."""
+    from quadrivio.metrics import fix_time
+
+    t = np.concatenate([np.arange(0.0, 30.0), np.arange(44.0, 60.0), np.arange(87.0, 101.0)])
+    frac, gap = fix_time(t, np.zeros(len(t)), (0.0, 100.0))
+    assert gap == pytest.approx(28.0)  # the fixes of 59 s and 87 s
+    assert frac == pytest.approx(1.0 - (15.0 - 1.5 + 28.0 - 1.5) / 100.0, abs=1e-9)  # beyond 1.5 periods
+    # a receiver that says "no fix" for the same time is the same
+    status = np.zeros(101)
+    status[30:44] = -1
+    status[60:87] = -1
+    frac2, gap2 = fix_time(np.arange(0.0, 101.0), status, (0.0, 100.0))
+    assert frac2 == pytest.approx(frac, abs=1e-9) and gap2 == pytest.approx(gap)
+    assert fix_time(t, -np.ones(len(t)), (0.0, 100.0)) == (0.0, 100.0)

@@ -186,6 +186,24 @@ def planned_metrics(run: RunData) -> Dict[str, object]:
     return m
 
 
+def fix_time(t: np.ndarray, status: np.ndarray, span) -> tuple:
+    """(fraction of the run's time with a fix, longest time without one [s]). Time, not
+    messages: a receiver that publishes nothing for 27 s (as much as one that says "no fix")
+    is 27 s without a fix. The receiver's own period (the median interval of its valid
+    fixes) is the time a fix covers; a gap counts as without a fix for what exceeds 1.5 of
+    it, as do the run's start before the first fix and its end after the last."""
+    t0, t1 = span
+    if not t1 > t0:
+        return None, None
+    valid = np.asarray(t, float)[np.asarray(status) >= 0]
+    if not len(valid):
+        return 0.0, float(t1 - t0)
+    period = float(np.median(np.diff(valid))) if len(valid) > 1 else float(t1 - t0)
+    gaps = np.diff(np.concatenate([[t0], valid, [t1]]))
+    without = float(np.sum(np.maximum(0.0, gaps - 1.5 * period)))
+    return max(0.0, 1.0 - without / (t1 - t0)), float(gaps.max())
+
+
 def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = None,
             wall_duration: Optional[float] = None, vehicle=None) -> Dict[str, object]:
     """The metrics of a run; with ``vehicle`` (VehicleParams) also the obstacle keys
@@ -216,7 +234,9 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
     if pp is not None:
         m["pred_rmse_m"] = _stats(pp[:, 1])[0]
     if len(run.gps):
-        m["gps_fix_fraction"] = float(np.mean(run.gps["status"] >= 0))
+        ends = [s.t for s in (run.gps, gt, run.estimate) if len(s)]
+        span = (min(float(e[0]) for e in ends), max(float(e[-1]) for e in ends))
+        m["gps_fix_fraction"], m["gps_longest_gap_s"] = fix_time(run.gps.t, run.gps["status"], span)
         ge = gps_errors(gt, run.gps, run.lever)
         if ge is not None and len(ge):
             m["gps_rmse_m"] = _stats(ge[:, 1])[0]
