@@ -162,3 +162,52 @@ def test_a_field_in_the_wrong_unit_is_named_not_a_traceback(tmp_path, capsys, to
     assert "Traceback" not in err
     assert "reads a field of 9e+05 uT" in err and "normalised to the local Earth field" in err
     assert "nothing written" in err and not out.exists()
+
+
+def test_every_gps_decision_is_visible_in_the_replayed_bag_the_csv_and_analyze(tmp_path):
+    """Which fixes were used, and why not: replay writes one GpsDecision per fix on
+    /localization/gps_decisions and, with --gps-csv, a CSV; analyze counts them and marks the
+    rejected fixes on trajectory.png. A standing vehicle with fixes at 5 Hz, five of them
+    30 m off after the estimate has settled."""
+    import csv
+    import json
+
+    bag = tmp_path / "standing.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(6000):  # 60 s at 100 Hz
+            t = rospy.Time(1.0 + 0.01 * k)
+            imu = Imu()
+            imu.header.stamp = t
+            imu.linear_acceleration.z = 9.81
+            b.write("/imu/data", imu, t)
+            if k % 2 == 0:
+                st = VehicleState()
+                st.header.stamp = t
+                b.write("/vehicle/state", st, t)
+            if k % 4 == 0:
+                mag = MagneticField()
+                mag.header.stamp, mag.magnetic_field.x, mag.magnetic_field.z = t, 2.2e-5, -4.0e-5
+                b.write("/imu/mag", mag, t)
+            if k % 20 == 0:
+                fix = NavSatFix()
+                off = 30.0 / 111_320.0 if 4000 <= k < 4100 else 0.0  # 5 fixes 30 m north
+                fix.header.stamp, fix.latitude, fix.longitude = t, 45.478 + off, 9.2276
+                fix.status.status = 0
+                fix.position_covariance_type = NavSatFix.COVARIANCE_TYPE_DIAGONAL_KNOWN
+                fix.position_covariance = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 4.0]
+                b.write("/gps/fix", fix, t)
+    out, table = tmp_path / "replayed.bag", tmp_path / "gps.csv"
+    assert replay_cli.main([str(bag), "--out", str(out), "--gps-csv", str(table), "--quiet"]) == 0
+    rows = list(csv.DictReader(open(table)))
+    with rosbag.Bag(str(out)) as r:
+        decisions = [m for _, m, _ in r.read_messages(topics=["/localization/gps_decisions"])]
+    assert len(rows) == len(decisions) >= 290  # one per fix (the last ones may still wait for their group)
+    rejected = [row for row in rows if row["used"] == "0"]
+    assert 5 <= len(rejected) <= 12 and all(row["reason"] in ("outlier", "multipath") for row in rejected)
+    assert all(39.99 < float(row["t"]) < 42.5 for row in rejected)  # the 30 m burst, not the good fixes
+    analysis = tmp_path / "analysis"
+    assert analyze_cli.main([str(out), "--out", str(analysis)]) == 0
+    m = json.loads((analysis / "metrics.json").read_text())
+    assert m["gps_fixes_used"] == len(rows) - len(rejected)
+    assert sum(v for k, v in m.items() if k.startswith("gps_fixes_rejected_")) == len(rejected)
+    assert (analysis / "trajectory.png").exists()

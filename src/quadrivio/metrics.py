@@ -61,6 +61,7 @@ class RunData:
     contacts: Optional[list] = None  # ground_truth/contacts: [(t, body, kind, speed)]; None: not recorded
     paths: list = field(default_factory=list)  # every path received: [(t, N x 2)] (replans)
     local_marks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # local_obstacles' marks, all run
+    gps_decisions: list = field(default_factory=list)  # localization/gps_decisions: [(fix t, used, reason, d2)]
 
 
 def _interp_pose(gt: Series, t: np.ndarray):
@@ -240,6 +241,11 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
         ge = gps_errors(gt, run.gps, run.lever)
         if ge is not None and len(ge):
             m["gps_rmse_m"] = _stats(ge[:, 1])[0]
+    if run.gps_decisions:  # what the localization did with the fixes (a recording of it, or a replay)
+        m["gps_fixes_used"] = sum(1 for d in run.gps_decisions if d[1])
+        for reason in sorted({d[2] for d in run.gps_decisions if not d[1]}):
+            m[f"gps_fixes_rejected_{reason.replace(' ', '_')}"] = sum(1 for d in run.gps_decisions
+                                                                      if not d[1] and d[2] == reason)
     if len(gt):
         t0, t1 = following_window(st, (float(gt.t[0]), float(gt.t[-1])))
         xt = cross_track_replanned(gt, run.paths, t0, t1) if len(run.paths) > 1 else cross_track(gt, run.path, t0, t1)

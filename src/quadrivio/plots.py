@@ -152,6 +152,11 @@ def trajectory(run: RunData, path: str, title: str) -> None:
     if len(run.gps):
         ok = run.gps["status"] >= 0
         ax.plot(run.gps["e"][ok], run.gps["n"][ok], "x", color="tab:red", ms=4, mew=0.8, label="GPS fixes")
+        rejected = rejected_fixes(run)
+        for (reason, pts), colour in zip(sorted(rejected.items()), ("black", "tab:purple", "tab:brown", "tab:pink")):
+            pts = np.array(pts)
+            ax.plot(pts[:, 0], pts[:, 1], "o", mfc="none", mec=colour, ms=7, mew=1.0,
+                    label=f"GPS fixes not used: {reason} ({len(pts)})")
     ax.set_aspect("equal", adjustable="datalim")
     if run.map is not None and len(run.ground_truth):  # the map is larger than the run: frame the run
         xs = np.concatenate([run.ground_truth["x"], run.path[:, 0] if run.path is not None else []])
@@ -261,6 +266,24 @@ def all_plots(run: RunData, out_dir: str, title: str) -> List[str]:
         if fn(run, os.path.join(out_dir, name), title):
             made.append(name)
     return made
+
+
+def rejected_fixes(run: RunData) -> dict:
+    """reason -> [(e, n)] of the fixes the localization did not use (its gps_decisions matched
+    to /gps/fix by stamp); empty without decisions."""
+    if not run.gps_decisions or not len(run.gps):
+        return {}
+    t = np.asarray(run.gps.t, float)
+    out: dict = {}
+    for td, used, reason, _d2 in run.gps_decisions:
+        if used or not reason or reason == "no fix":
+            continue
+        i = int(np.searchsorted(t, td))
+        best = min((j for j in (i - 1, i) if 0 <= j < len(t)), key=lambda j: abs(t[j] - td), default=None)
+        if best is None or abs(t[best] - td) > 1e-3 or not np.isfinite(run.gps["e"][best]):
+            continue
+        out.setdefault(reason, []).append((float(run.gps["e"][best]), float(run.gps["n"][best])))
+    return out
 
 
 def format_metrics(m: Dict[str, object]) -> List[str]:

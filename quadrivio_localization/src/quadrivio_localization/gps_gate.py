@@ -140,6 +140,7 @@ class GpsGate:
         self.burst_since = -math.inf
         self.last_fix_t = -math.inf
         self.bursts = 0
+        self.decisions: list = []  # (t, used, reason, d2) since the last pop_decisions
 
     @property
     def settled(self) -> bool:
@@ -164,9 +165,24 @@ class GpsGate:
         self.burst = None
         self.rejecting_since = None
 
-    def skip(self, reason: str) -> None:
-        """Count a fix that never reached the tests (no fix, not finite, too old)."""
+    def skip(self, reason: str, t: float = math.nan) -> None:
+        """Count a fix of time ``t`` that never reached the tests (no fix, not finite, too old)."""
         self.counts[reason] += 1
+        self._record(t, False, reason, math.nan)
+
+    MAX_DECISIONS = 100_000  # kept until popped (a node that never pops them keeps the newest)
+
+    def _record(self, t: float, used: bool, reason: str, d2: float) -> None:
+        self.decisions.append((t, used, reason, d2))
+        if len(self.decisions) > self.MAX_DECISIONS:
+            del self.decisions[:len(self.decisions) - self.MAX_DECISIONS]
+
+    def pop_decisions(self):
+        """(fix time, used, reason, squared Mahalanobis distance) of every decision since the
+        last call, in the order made: reason "" when used, "yielded" when used after
+        yield_after s of rejections, else why not."""
+        out, self.decisions = self.decisions, []
+        return out
 
     def decide(self, t: float, nu: np.ndarray, P: np.ndarray, R: np.ndarray,
                group: Sequence[Tuple[np.ndarray, np.ndarray]] = (),
@@ -203,6 +219,8 @@ class GpsGate:
             self.counts[verdict.reason] += 1
         self.last_reason = verdict.reason
         self.last_d2 = verdict.d2
+        self._record(t, verdict.use, ("yielded" if verdict.yielded else "") if verdict.use else verdict.reason,
+                     verdict.d2)
         return verdict
 
     def _jump(self, t: float, step) -> bool:

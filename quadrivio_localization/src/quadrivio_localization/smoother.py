@@ -212,11 +212,11 @@ class Localizer:
 
     def add_gps(self, t: float, lat: float, lon: float, alt: float, var_e: float, var_n: float, status: int) -> None:
         if status < 0:
-            self.gate.skip(NO_FIX)
+            self.gate.skip(NO_FIX, t)
             return
         if not _finite(t, lat, lon, alt):
             self.counters.bad_input += 1
-            self.gate.skip(NOT_FINITE)
+            self.gate.skip(NOT_FINITE, t)
             return
         enu = np.asarray(self.frame.lla_to_enu(lat, lon, alt))
         self.z = lowpass(self.z, float(enu[2]) - self.lever_z, self.z_t, t, self.p.altitude_tau)
@@ -509,6 +509,11 @@ class Localizer:
                        "odometry ignored")
         return out
 
+    def pop_gps_decisions(self):
+        """Every GPS decision since the last call: (fix time, used, reason, d2), see
+        :meth:`GpsGate.pop_decisions`."""
+        return self.gate.pop_decisions()
+
     def pop_events(self) -> List[str]:
         ev, self.events = self.events, []
         return ev
@@ -552,7 +557,7 @@ class Localizer:
                 keep.append(self.gps_pending[i])  # its keyframe does not exist yet
                 continue
             if k < self.oldest_k:
-                self.gate.skip(TOO_OLD)
+                self.gate.skip(TOO_OLD, t)
                 continue
             # Wait for the group: a later fix beyond it, or group_wait of silence after it. Not
             # without odometry: the fixes are then all there is, and waiting leaves the newest
@@ -564,7 +569,7 @@ class Localizer:
                 continue
             inn = innovation(i)
             if inn is None:
-                self.gate.skip(TOO_OLD)
+                self.gate.skip(TOO_OLD, t)
                 continue
             nu, zc, pose, _ = inn
             R = np.diag([ve, vn])

@@ -36,6 +36,7 @@ TOPICS = {
     "actors": "/ground_truth/actors",
     "contacts": "/ground_truth/contacts",
     "local": "/local_obstacles",
+    "gps_decisions": "/localization/gps_decisions",
 }
 # Not /clock: a bag's messages carry their time, `rosbag play --clock` publishes it, and a
 # recorded /clock would make a second publisher of it (12 % of a run's messages).
@@ -109,6 +110,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
     paths: List[tuple] = []  # (stamp, xy) of every path: a replan replaces the route from then on
     local_marks: set = set()  # every cell the local obstacle layer marked during the run (map frame, 0.1 m)
     contacts = None
+    decisions: List[tuple] = []  # (fix stamp, used, reason, d2) of localization/gps_decisions
     by_topic = {v: k for k, v in topics.items()}
     with bag:
         try:
@@ -140,6 +142,9 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
                         if len(rows_):
                             x, y, _ = g.to_map_frame((cols_ + 0.5) * g.resolution, (rows_ + 0.5) * g.resolution)
                             local_marks.update(zip(np.round(np.asarray(x, float), 1), np.round(np.asarray(y, float), 1)))
+                    continue
+                if kind == "gps_decisions":
+                    decisions.append((m.header.stamp.to_sec(), bool(m.used), m.reason, m.mahalanobis2))
                     continue
                 if kind == "contacts":
                     contacts = (contacts or []) + [(m.header.stamp.to_sec(), m.body, m.kind, m.speed)]
@@ -185,6 +190,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
         estimate=_series(rows["estimate"], pose_cols),
         predicted=_series(rows["predicted"], pose_cols),
         gps=_series(rows["gps"], ("e", "n", "status")),
+        gps_decisions=decisions,
         path=path_xy,
         status=_series(rows["status"], ("status", "progress", "cross_track")),
         lever=tuple(vehicle.sensors["gps_link"].xyz[:2]),

@@ -36,11 +36,11 @@ from quadrivio_runtime import diagnostics
 from quadrivio_runtime.direct import direct_publisher
 from quadrivio_runtime.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump
+from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning
-from ..msg import Calibration
+from ..msg import Calibration, GpsDecision
 from ..smoother import Localizer, LocalizerParams
 from . import messages
 
@@ -68,6 +68,8 @@ class LocalizationNode:
         self._fresh_state()
         self.pub_odom = direct_publisher("localization/odom", Odometry, queue_size=20)
         self.pub_cal = rospy.Publisher("localization/calibration", Calibration, queue_size=5, latch=True)
+        # every GPS fix's fate: used, or why not (analyze marks the rejected ones)
+        self.pub_decisions = rospy.Publisher("localization/gps_decisions", GpsDecision, queue_size=100)
         self.tf = tf2_ros.TransformBroadcaster() if self.node_params.publish_tf else None
         self.update_ms = []
         on_clock_jump(self._on_clock_jump)
@@ -152,6 +154,9 @@ class LocalizationNode:
                 return
             sigma = self.loc.calibration_sigma() if now - self.last_cal >= self.node_params.calibration_period else None
             events = self.loc.pop_events()
+            decisions = self.loc.pop_gps_decisions()
+        for d in decisions:
+            publish(self.pub_decisions, messages.gps_decision(*d))
         for e in events:
             rospy.logwarn("localization: %s", e)
         self.update_ms.append((time.perf_counter() - w0) * 1e3)

@@ -10,7 +10,7 @@ from sensor_msgs.msg import NavSatFix
 
 from quadrivio_description.frames import quaternion_from_rpy
 
-from ..msg import Calibration
+from ..msg import Calibration, GpsDecision
 from ..smoother import CALIBRATION_NAMES, Estimate, Localizer
 
 
@@ -73,3 +73,15 @@ def calibration(est: Estimate, sigma: dict) -> Calibration:
     scale = [1, 1, 1, 1, 1e-6, 1e-6, 1, 1, 1]
     m.sigma = [sigma.get(n, math.nan) * k for n, k in zip(CALIBRATION_NAMES, scale)]
     return m
+
+
+def gps_decision(t: float, used: bool, reason: str, d2: float, frame_id: str = "gps_link") -> GpsDecision:
+    """The gate's decision on the fix stamped ``t`` (a non-finite ``t``: stamp 0)."""
+    import rospy
+
+    m = GpsDecision()
+    m.header.stamp = rospy.Time.from_sec(t) if math.isfinite(t) and t >= 0.0 else rospy.Time(0)
+    m.header.frame_id = frame_id
+    m.used, m.reason, m.mahalanobis2 = bool(used), reason, float(d2)
+    return m
+

@@ -115,6 +115,9 @@ def parse(argv: List[str]) -> argparse.Namespace:
     ap.add_argument("--gps", default="/gps/fix", help="sensor_msgs/NavSatFix topic")
     ap.add_argument("--imu", default="/imu/data", help="sensor_msgs/Imu topic")
     ap.add_argument("--mag", default="/imu/mag", help="sensor_msgs/MagneticField topic")
+    ap.add_argument("--gps-csv", default="", metavar="FILE",
+                    help="also write every GPS fix's decision (used, or why not) as CSV; the output bag has them on "
+                         "/localization/gps_decisions")
     ap.add_argument("--state", default="/vehicle/state",
                     help="quadrivio_plc/VehicleState topic (or any type with header, wheel_speed, handlebar)")
     ap.add_argument("--map", default="", metavar="YAML",
@@ -123,6 +126,19 @@ def parse(argv: List[str]) -> argparse.Namespace:
     ap.add_argument("--only-outputs", action="store_true", help="write only the replay's topics")
     ap.add_argument("--quiet", action="store_true", help="no progress lines")
     return ap.parse_args(argv)
+
+
+def write_decisions_csv(path: str, decisions) -> None:
+    """The GPS decisions as CSV (fix time, used, reason, squared Mahalanobis distance), written
+    aside and renamed: complete or absent."""
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".gps-", suffix=".csv", dir=folder)
+    with os.fdopen(fd, "w") as fh:
+        fh.write("t,used,reason,mahalanobis2\n")
+        for t, used, reason, d2 in decisions:
+            fh.write(f"{t:.6f},{int(bool(used))},{reason},{d2:.6g}\n")
+    os.replace(tmp, path)
 
 
 SANITY_SAMPLES = 2000  # readings of each kind the unit checks look at (the bag's first)
@@ -182,6 +198,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     os.makedirs(out_dir, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".replay-", suffix=".bag", dir=out_dir)
     os.close(fd)
+    decisions: list = []  # (fix time, used, reason, d2) of every GPS decision, in order
     counts = {r: 0 for r in ROLES}
     counts.update(bad=0, estimates=0, calibrations=0)
     wall0 = time.perf_counter()
@@ -209,8 +226,11 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
             next_report = 0.1
             with rosbag.Bag(tmp, "w") as out:
 
-                def write(estimates) -> None:
+                def write(estimates, now: float) -> None:
                     nonlocal last_cal
+                    for d in loc.pop_gps_decisions():  # when decided (up to the gate's look-ahead after the fix)
+                        decisions.append(d)
+                        out.write("/localization/gps_decisions", messages.gps_decision(*d), rospy.Time.from_sec(now))
                     for tick, est in estimates:
                         at = rospy.Time.from_sec(tick)
                         out.write("/localization/odom", messages.odometry(est, node.map_frame, node.base_frame), at)
@@ -222,7 +242,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
 
                 for topic, raw, t in read_messages(bag, args.bag, raw=True, error=ReplayError):
                     now = t.to_sec()
-                    write(ticker.until(now))
+                    write(ticker.until(now), now)
                     role = role_of.get(topic)
                     if role is not None:
                         try:
@@ -257,7 +277,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                         print(f"[replay] {100 * frac:3.0f} % of {t_end - t_start:.1f} s, {counts['estimates']} "
                               f"estimates, {time.perf_counter() - wall0:.1f} s", file=sys.stderr)
                         next_report += 0.1
-                write(ticker.final())
+                write(ticker.final(), t_end)
     except rosbag.ROSBagException as exc:
         os.unlink(tmp)
         raise ReplayError(f"{args.bag}: corrupt bag ({exc})") from exc
@@ -269,6 +289,8 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
         raise ReplayError(f"{args.bag}: no estimate at all from {counts['gps']} GPS messages and {counts['mag']} "
                           "magnetometer readings (the smoother needs a fix and the magnetometer to start)")
     os.replace(tmp, args.out)
+    if args.gps_csv:
+        write_decisions_csv(args.gps_csv, decisions)
     c = loc.counters
     counts.update(wall_s=round(time.perf_counter() - wall0, 3), bag_s=round(t_end - t_start, 3),
                   keyframes=c.keyframes, gps_used=c.gps_used, gps_not_used=dict(loc.gate.counts),
