@@ -38,6 +38,14 @@ def test_too_little_turning_is_refused_with_the_reason():
         fit(readings(theta, 0.3), math.hypot(*H))
 
 
+@pytest.mark.parametrize("heading", [0.0, 1.2, -2.8])
+def test_no_heading_change_is_named_as_such(heading):
+    """The original vehicle's 55 s standing still: "the ellipse fit did not converge" named no
+    cause; the readings never moved round their circle."""
+    with pytest.raises(InsufficientExcitation, match="no heading change: the readings span [0-9.]+ uT"):
+        fit(readings(np.full(500, heading), 0.3, seed=2), math.hypot(*H))
+
+
 def test_too_few_and_bad_readings():
     with pytest.raises(InsufficientExcitation, match="only 10"):
         fit(readings(np.linspace(0, 6.3, 10), 0.1), 24.0)

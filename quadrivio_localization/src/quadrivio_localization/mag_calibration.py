@@ -104,6 +104,15 @@ def fit(m: np.ndarray, field: float, p: MagFitParams = MagFitParams()) -> MagFit
         raise InsufficientExcitation(f"only {len(m)} magnetometer readings; at least {p.min_samples} are needed")
     if not (field > 0.0 and math.isfinite(field)):
         raise MagCalibrationError(f"horizontal field {field!r} uT must be positive")
+    # A turning vehicle moves its readings around a circle of about the field's diameter;
+    # readings that stay within a small part of that are a vehicle that did not turn (the
+    # circle fit through them is degenerate and the ellipse fit "does not converge")
+    spread = float(np.hypot(*(m.max(axis=0) - m.min(axis=0))))
+    if spread < 0.25 * field:
+        raise InsufficientExcitation(
+            f"no heading change: the readings span {spread:.1f} uT where a full turn of the vehicle moves them "
+            f"across about {2 * field:.0f} uT (twice the site's horizontal field): drive at least one full circle "
+            "(better one each way), slowly, on level ground")
     # Algebraic circle fit (Kasa) for the start: x^2 + y^2 = 2 a x + 2 b y + c.
     A = np.column_stack([2 * m[:, 0], 2 * m[:, 1], np.ones(len(m))])
     a, b, c = np.linalg.lstsq(A, (m ** 2).sum(axis=1), rcond=None)[0]
