@@ -232,3 +232,24 @@ def test_an_import_mapping_reads_raw_units(recording, tmp_path, capsys):
     assert "no 'setpoint' section" in capsys.readouterr().err
     assert main([raw, "--out", str(tmp_path / "x"), "--map", str(mfile)] + ARGS) == 2
     assert "replaces --config" in capsys.readouterr().err and not (tmp_path / "x").exists()
+
+
+def test_a_recording_in_mismatched_units_is_warned():
+    """calibrate --replay printed delay, rise and overshoot for a handlebar response 20x smaller
+    than its setpoints, which were beyond the steering limit (degrees declared as radians),
+    without a word."""
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_sim.calibration import Series, recording_warnings
+
+    v = load_vehicle()
+    t = np.arange(0.0, 20.0, 0.01)
+    deg = np.where((t // 4) % 2 == 1, 20.0, -20.0)  # setpoints in degrees, read as radians
+    measured = np.radians(deg) * 0.95
+    w = recording_warnings("handlebar", Series(t, deg, measured, np.zeros_like(t)), v)
+    assert len(w) == 2
+    assert "beyond the vehicle's limits" in w[0] and "-20 .. 20 rad" in w[0]
+    assert "different units or scales" in w[1]
+    ok = recording_warnings("handlebar", Series(t, np.radians(deg), measured, np.zeros_like(t)), v)
+    assert ok == []
+    speed = recording_warnings("speed", Series(t, np.full_like(t, 36.0), np.full_like(t, 9.5), np.zeros_like(t)), v)
+    assert "beyond the vehicle's limits" in speed[0]  # km/h for m/s

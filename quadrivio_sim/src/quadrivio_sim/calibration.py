@@ -57,6 +57,33 @@ class Series:
         return float(self.t[1] - self.t[0])
 
 
+def recording_warnings(loop: str, s: Series, vehicle: VehicleParams) -> List[str]:
+    """What makes a recording's step metrics meaningless, in words: setpoints beyond the
+    vehicle's limits (a unit mismatch: degrees for radians, km/h for m/s), or a measurement
+    that moves a small fraction of what the setpoints ask (setpoint and measurement in
+    different units or scales)."""
+    out = []
+    sp, ms = np.asarray(s.setpoint, float), np.asarray(s.measured, float)
+    if not len(sp):
+        return out
+    if loop == "handlebar":
+        limit_lo, limit_hi, unit = -vehicle.steering.max_angle, vehicle.steering.max_angle, "rad"
+    else:
+        limit_lo, limit_hi, unit = -vehicle.drivetrain.max_reverse_speed, vehicle.drivetrain.max_speed, "m/s"
+    beyond = (sp > limit_hi * 1.05) | (sp < limit_lo * 1.05 - 1e-9)
+    if beyond.mean() > 0.01:
+        out.append(f"the {loop} setpoints reach {float(sp.min()):.3g} .. {float(sp.max()):.3g} {unit}, beyond the "
+                   f"vehicle's limits ({limit_lo:g} .. {limit_hi:g} {unit}) {100 * beyond.mean():.0f} % of the time: "
+                   f"likely a unit mismatch (the mapping's setpoint scale)")
+    sp_range = float(np.percentile(sp, 95) - np.percentile(sp, 5))
+    ms_range = float(np.percentile(ms, 95) - np.percentile(ms, 5)) if len(ms) else 0.0
+    if sp_range > 0.0 and ms_range < 0.2 * sp_range:
+        out.append(f"the measured {loop} moves {ms_range:.3g} {unit} where its setpoints move {sp_range:.3g} "
+                   f"{unit} ({ms_range / sp_range:.2g} of it): setpoint and measurement are likely in different "
+                   f"units or scales, and the step metrics below compare them as they are")
+    return out
+
+
 def resample(t_src: np.ndarray, values: np.ndarray, t_grid: np.ndarray, hold: bool) -> np.ndarray:
     """Values at ``t_grid``: zero-order hold (setpoints) or linear interpolation (measurements)."""
     if hold:

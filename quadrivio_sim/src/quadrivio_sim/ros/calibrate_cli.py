@@ -44,7 +44,7 @@ from quadrivio_description.vehicle import load_vehicle
 
 from ..actuators import ActuatorParams
 from ..calibration import (CalibrationError, Series, apply_fits, find_steps, identify_handlebar, identify_speed,
-                           make_series, mean_metrics, reference_from, rms, step_metrics)
+                           make_series, mean_metrics, recording_warnings, reference_from, rms, step_metrics)
 from ..paths import package_file
 from ..script import ScriptRow, SetpointScript
 from ..simulator import SimParams, Simulator
@@ -246,7 +246,12 @@ def run(args) -> int:
         loops = [x for x in args.loops.split(",") if x]
         series = {loop: series_for(data, loop, dt_cycle) for loop in loops}
         report: Dict = {"bag": os.path.abspath(args.bag), "mode": "replay" if args.replay else "identify",
-                        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"), "loops": {}}
+                        "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"), "loops": {},
+                        "warnings": []}
+        for loop in loops:
+            for warning in recording_warnings(loop, series[loop], vehicle):
+                print(f"[calibrate] WARNING: {warning}", file=sys.stderr, flush=True)
+                report["warnings"].append(warning)
         fits, fit_curves = [], {}
         if not args.replay:
             from ..calibration import simulate_handlebar, simulate_speed
