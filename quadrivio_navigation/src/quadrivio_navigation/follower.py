@@ -20,8 +20,9 @@ the segment's end: the profile brings the vehicle to rest at every cusp and at t
 At a cusp, once stopped (``|v| < stop_speed``) within ``cusp_tolerance`` of it, the next
 segment starts; so it does when the vehicle stands held short of the cusp (by the
 obstacle guard) within that distance. At the route's end, once stopped, the follower is DONE when it is within
-``goal_tolerance`` and ``heading_tolerance`` of the goal pose, and ABORTED (missed the
-goal, with the errors) otherwise. A stale pose must not steer the vehicle: one older than
+``goal_tolerance`` and ``heading_tolerance`` (15 deg) of the goal pose, DONE with a parking
+error (said in the reason, ``parking_error``) within twice those, and ABORTED (missed the
+goal, with the errors) beyond. A stale pose must not steer the vehicle: one older than
 ``pose_budget`` over the speed (within [``min_pose_age``, ``max_pose_age``]: 0.08 s at
 3 m/s) stops it with the brake, still FOLLOWING, until a fresh pose comes, and it drives
 on from rest. It aborts at once (full stop) when the cross-track error exceeds
@@ -61,7 +62,9 @@ class FollowerParams:
     min_speed: float = param(0.3, lo=0.0, hi=5.0, unit="m/s", doc="speed floor until a segment's end")
     reverse_speed: float = param(1.0, lo=0.1, hi=10.0, unit="m/s", doc="speed limit in reverse")
     goal_tolerance: float = param(0.5, lo=0.05, hi=10.0, unit="m", doc="done within this of the path's end")
-    heading_tolerance: float = param(0.26, lo=0.01, hi=3.2, unit="rad", doc="... and within this of its heading")
+    heading_tolerance: float = param(math.radians(15.0), lo=0.01, hi=3.2, unit="rad",
+                                     doc="... and within this of its heading (15 deg); within twice the tolerances "
+                                         "it is DONE with a parking error, beyond them ABORTED")
     stop_distance: float = param(0.1, lo=0.0, hi=5.0, unit="m", doc="speed setpoint 0 this far from a segment's end")
     stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
     cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m", doc="change direction within this of a cusp")
@@ -198,6 +201,7 @@ class PurePursuit:
         self.accel = self.decel = self.stop_decel = math.inf
         self.stall_ref: Optional[Tuple[float, float]] = None  # (time, route progress [m]) of the last progress
         self.waiting_pose = ""  # why the vehicle stands waiting for a fresh pose ("": it does not)
+        self.parking_error = False  # DONE, but parked outside the tolerance (within twice it)
 
     @property
     def path(self) -> Path:
@@ -349,6 +353,11 @@ class PurePursuit:
             self.status = ABORTED
         elif e <= self.p.goal_tolerance and eh <= self.p.heading_tolerance:
             self.status, self.reason = DONE, f"goal reached: {e:.2f} m, {math.degrees(eh):.1f} deg off"
+        elif e <= 2.0 * self.p.goal_tolerance and eh <= 2.0 * self.p.heading_tolerance:
+            # Arrived, and parked a little off: a parking error, not an abort of a run that arrived
+            self.status, self.parking_error = DONE, True
+            self.reason = (f"arrived with a parking error: {e:.2f} m and {math.degrees(eh):.1f} deg from the goal "
+                           f"(tolerance {self.p.goal_tolerance} m, {math.degrees(self.p.heading_tolerance):.1f} deg)")
         else:
             self.status = ABORTED
             self.reason = (f"stopped {e:.2f} m and {math.degrees(eh):.1f} deg from the goal (tolerance "
