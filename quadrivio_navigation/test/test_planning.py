@@ -248,3 +248,21 @@ def test_the_lattice_plans_from_a_start_just_clear_of_a_block():
         assert r.ok, f"{kind}: {r.reason}"
         assert np.allclose(r.poses[0], start, atol=1e-6), f"{kind} starts at {r.poses[0]}, not {start}"
         assert collision_free(planner, r.poses)
+
+
+def test_ompl_hands_over_to_the_lattice_in_the_rest_of_its_budget():
+    """Where sampling finds no way in its share of the budget (here a share of 6 ms, too short
+    for any path through a 30 m passage), the lattice plans in the rest, and the result says so."""
+    cv = Canvas(-20.0, -10.0, 60.0, 20.0, 0.2)
+    cv.box(10.0, 6.3, 30.0, 10.0)  # a passage 2.6 m wide: the footprint with its padding is 1.5 m
+    cv.box(10.0, -6.3, 30.0, 10.0)
+    cv.border(0.4)
+    grid = cv.grid()
+    ompl_alone = Planner(grid, VEHICLE, params("ompl", budget=1.0,
+                                               ompl=dataclasses.replace(OmplParams(), hand_over=0.0)))
+    handed = Planner(grid, VEHICLE, params("ompl", budget=6.0, ompl=dataclasses.replace(OmplParams(), hand_over=0.001)))
+    r = handed.plan((-15.0, 0.0, 0.0), (35.0, 0.0, 0.0))
+    assert r.ok, r.reason
+    assert r.planner == "ompl+lattice" and "OMPL found no path in" in r.note and "the lattice planned" in r.note
+    assert collision_free(handed, r.poses) and r.planning_time < 8.0
+    assert ompl_alone.plan((-15.0, 0.0, 0.0), (35.0, 0.0, 0.0)).planner == "ompl"  # no hand-over when 0

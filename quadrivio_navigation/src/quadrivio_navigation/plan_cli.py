@@ -90,7 +90,7 @@ def summary(r: PlanResult, start, goal) -> dict:
     def num(v):
         return None if v is None or (isinstance(v, float) and not math.isfinite(v)) else v
 
-    return {"planner": r.planner, "ok": r.ok, "reason": r.reason, "start": list(start), "goal": list(goal),
+    return {"planner": r.planner, "ok": r.ok, "reason": r.reason, "note": r.note, "start": list(start), "goal": list(goal),
             "cost": num(r.cost), "length_m": num(r.length), "time_to_first_s": num(r.time_to_first),
             "planning_time_s": num(r.planning_time), "expansions": r.expansions, "cusps": r.cusps if r.ok else None,
             "poses": int(len(r.poses)), "goal_offset_m": r.goal_offset[0], "goal_offset_rad": r.goal_offset[1],
@@ -214,6 +214,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         write_csv(os.path.join(args.out, "path.csv"), r)
         print(f"[plan] {r.planner}: {r.length:.1f} m, cost {r.cost:.1f}, {r.cusps} cusp(s), first solution in "
               f"{1e3 * r.time_to_first:.0f} ms, {r.planning_time:.2f} s in all")
+        if r.note:
+            print(f"[plan] {r.note}")
     else:
         stale = os.path.join(args.out, "path.csv")
         if os.path.exists(stale):  # an earlier run's path must not pass for this one's

@@ -293,7 +293,8 @@ class PlannerNode:
         poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
         self._publish_path(path_msg(poses, self.node_params.frame_id, rospy.Time.now()))
         self.path_poses = poses
-        self._set_status(PlannerStatus.FOUND, f"replanned ({why})", start_msg, self.goal, r)
+        self._set_status(PlannerStatus.FOUND, f"replanned ({why})" + (f"; {r.note}" if r.note else ""), start_msg,
+                         self.goal, r)
         rospy.loginfo("planner: replanned around the obstacle in %.2f s: %.1f m, %d cusp(s)",
                       time.monotonic() - t, r.length, r.cusps)
 
@@ -385,7 +386,7 @@ class PlannerNode:
         self._publish_path(path_msg(r.poses, self.node_params.frame_id, rospy.Time.now()))
         self.path_poses = r.poses
         self.blocked_since = None
-        self._set_status(PlannerStatus.FOUND, "", start_msg, m, r)
+        self._set_status(PlannerStatus.FOUND, r.note, start_msg, m, r)
         rospy.loginfo("planner: %s path of %.1f m, %d cusp(s), cost %.1f; first solution in %.0f ms, %.2f s in all",
                       r.planner, r.length, r.cusps, r.cost, 1e3 * r.time_to_first, r.planning_time)
 
