@@ -191,3 +191,15 @@ def test_gps_fix_fraction_is_time_with_a_fix_not_messages():
     frac2, gap2 = fix_time(np.arange(0.0, 101.0), status, (0.0, 100.0))
     assert frac2 == pytest.approx(frac, abs=1e-9) and gap2 == pytest.approx(gap)
     assert fix_time(t, -np.ones(len(t)), (0.0, 100.0)) == (0.0, 100.0)
+
+
+def test_speed_is_read_against_its_limit():
+    """stack_efficiency: the achieved factor over cores / CPU s per simulated s, the share of
+    the machine the run kept busy (issue 28)."""
+    from quadrivio.metrics import cpu_metrics
+
+    m = cpu_metrics(cpu_s=60.0, sim_s=100.0, wall_s=40.0, cores=2)  # factor 2.5 at 0.6 CPU s per sim s
+    assert m["stack_cpu_s_per_sim_s"] == pytest.approx(0.6)
+    assert m["stack_efficiency"] == pytest.approx(2.5 / (2 / 0.6))  # 0.75 of the two cores
+    assert cpu_metrics(None, 100.0, 40.0, 2) == {"stack_cpu_s_per_sim_s": None, "stack_efficiency": None}
+    assert cpu_metrics(60.0, 100.0, None, 2)["stack_efficiency"] is None

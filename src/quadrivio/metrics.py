@@ -187,6 +187,23 @@ def planned_metrics(run: RunData) -> Dict[str, object]:
     return m
 
 
+def cpu_metrics(cpu_s: Optional[float], sim_s: Optional[float], wall_s: Optional[float],
+                cores: Optional[int]) -> Dict[str, Optional[float]]:
+    """A run's speed read against its limit: ``stack_cpu_s_per_sim_s`` (CPU seconds of every
+    process of the run per simulated second) and ``stack_efficiency``, the achieved factor
+    over the CPU-bound one (cores / CPU s per simulated s), which is the share of the
+    machine's cores the run kept busy: near 1, more speed needs less work, not more waiting."""
+    out: Dict[str, Optional[float]] = {"stack_cpu_s_per_sim_s": None, "stack_efficiency": None}
+    if not (cpu_s and sim_s and sim_s > 0.0):
+        return out
+    out["stack_cpu_s_per_sim_s"] = cpu_s / sim_s
+    if wall_s and wall_s > 0.0 and cores:
+        achieved = sim_s / wall_s
+        limit = cores / out["stack_cpu_s_per_sim_s"]
+        out["stack_efficiency"] = achieved / limit
+    return out
+
+
 def fix_time(t: np.ndarray, status: np.ndarray, span) -> tuple:
     """(fraction of the run's time with a fix, longest time without one [s]). Time, not
     messages: a receiver that publishes nothing for 27 s (as much as one that says "no fix")

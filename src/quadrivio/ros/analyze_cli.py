@@ -48,6 +48,9 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
             raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
                            f"move it away to analyze the bag alone") from exc
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
+    if info.get("stack_cpu_s") is not None:  # experiment measured its processes' CPU while sim time ran
+        m.update(metrics.cpu_metrics(info.get("stack_cpu_s"), info.get("stack_cpu_sim_s"), info.get("stack_cpu_wall_s"),
+                                     info.get("cpu_cores")))
     os.makedirs(out, exist_ok=True)
     tmp = os.path.join(out, ".metrics.json.tmp")
     with open(tmp, "w") as fh:

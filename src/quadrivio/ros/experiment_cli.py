@@ -30,7 +30,7 @@ import sys
 import threading
 import time
 import xmlrpc.client
-from typing import List, Optional, Set, Tuple
+from typing import Dict, List, Optional, Set, Tuple
 
 from quadrivio_description.config import ConfigError
 from quadrivio_runtime.lockstep_wire import ARMED_PARAM
@@ -113,6 +113,7 @@ class Runner:
         self.last_status_wall = None
         self.wall0 = time.monotonic()  # the run's start once unpaused; until then, the command's
         self.wall_duration = 0.0
+        self.cpu_start = self.cpu_end = None  # (per-process CPU, sim time, wall time) when sim time ran, and at its end
 
     def log(self, text: str) -> None:
         print(f"[experiment {dt.datetime.now().strftime('%H:%M:%S')}] {text}", flush=True)
@@ -275,6 +276,44 @@ class Runner:
         self.planner = m
 
     # ------------------------------------------------------------------- loop
+    def _cpu_snapshot(self) -> Dict[int, Tuple[str, float]]:
+        """pid -> (node name or program, CPU seconds so far) of every process of the run."""
+        import psutil
+
+        out = {}
+        try:
+            procs = psutil.Process().children(recursive=True)
+        except psutil.Error:
+            return out
+        for pr in procs:
+            try:
+                with pr.oneshot():
+                    t = pr.cpu_times()
+                    cmd = pr.cmdline()
+            except psutil.Error:
+                continue
+            name = next((a.split(":=", 1)[1] for a in cmd if a.startswith("__name:=")), None) or \
+                os.path.basename(cmd[1] if len(cmd) > 1 and cmd[0].endswith(("python3", "python")) else
+                                 (cmd[0] if cmd else pr.name()))
+            out[pr.pid] = (name, t.user + t.system)
+        return out
+
+    def cpu_report(self) -> Dict[str, object]:
+        """The run's CPU while sim time ran (start-up and shutdown left out), for
+        ``stack_cpu_s_per_sim_s`` and ``stack_efficiency`` (quadrivio.metrics.cpu_metrics), and
+        per process: where it goes."""
+        a, b = self.cpu_start, self.cpu_end
+        if a is None or b is None or b[1] <= a[1] or b[2] <= a[2]:
+            return {}
+        per: Dict[str, float] = {}
+        for pid, (name, cpu) in b[0].items():
+            per[name] = per.get(name, 0.0) + cpu - a[0].get(pid, (name, 0.0))[1]
+        sim_s, wall_s = b[1] - a[1], b[2] - a[2]
+        return {"stack_cpu_s": sum(per.values()), "stack_cpu_sim_s": sim_s, "stack_cpu_wall_s": wall_s,
+                "cpu_cores": os.cpu_count(),
+                "cpu_s_per_sim_s_by_process": {k: round(v / sim_s, 4) for k, v in sorted(per.items(),
+                                                                                         key=lambda e: -e[1])}}
+
     def run(self) -> str:
         import rospy
 
@@ -285,6 +324,8 @@ class Runner:
         while True:
             threading.Event().wait(0.2)
             now = rospy.get_time()
+            if t_start is None and now > 0:
+                self.cpu_start = (self._cpu_snapshot(), now, time.monotonic())
             t_start = now if t_start is None and now > 0 else t_start
             st = self.status
             wall = time.monotonic() - self.wall0
@@ -314,6 +355,8 @@ class Runner:
                             (f", {pl.reason})" if pl.reason else ")")
                 self.log(f"sim t = {now:6.1f} s, {prog}, real-time factor {now / max(wall, 1e-3):.2f}")
         self.wall_duration = time.monotonic() - self.wall0
+        if self.cpu_start is not None:
+            self.cpu_end = (self._cpu_snapshot(), rospy.get_time(), time.monotonic())
         return outcome
 
     def finish(self, timeout: float = 15.0) -> None:
@@ -465,6 +508,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
             "stack": args.stack, "lockstep": args.lockstep, "stale_fraction": args.stale_fraction,
+            **runner.cpu_report(),
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
     tmp = os.path.join(runner.out, ".run_info.json.tmp")
     with open(tmp, "w") as fh:
