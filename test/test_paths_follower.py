@@ -227,7 +227,7 @@ def test_parked_a_little_off_is_a_parking_error_not_an_abort():
     pp, _ = run_route(route)
     assert pp.status == DONE and pp.parking_error, pp.reason
     assert "arrived with a parking error" in pp.reason and "tolerance 0.5 m, 15.0 deg" in pp.reason
-    assert FollowerParams().heading_tolerance == pytest.approx(math.radians(15.0))
+    assert FollowerParams().heading_tolerance == pytest.approx(math.radians(15.0), abs=1e-4)
 
 
 def test_a_new_route_while_driving_does_not_jump_the_setpoints():

@@ -62,7 +62,7 @@ class FollowerParams:
     min_speed: float = param(0.3, lo=0.0, hi=5.0, unit="m/s", doc="speed floor until a segment's end")
     reverse_speed: float = param(1.0, lo=0.1, hi=10.0, unit="m/s", doc="speed limit in reverse")
     goal_tolerance: float = param(0.5, lo=0.05, hi=10.0, unit="m", doc="done within this of the path's end")
-    heading_tolerance: float = param(math.radians(15.0), lo=0.01, hi=3.2, unit="rad",
+    heading_tolerance: float = param(0.2618, lo=0.01, hi=3.2, unit="rad",
                                      doc="... and within this of its heading (15 deg); within twice the tolerances "
                                          "it is DONE with a parking error, beyond them ABORTED")
     stop_distance: float = param(0.1, lo=0.0, hi=5.0, unit="m", doc="speed setpoint 0 this far from a segment's end")
