@@ -2,4 +2,4 @@
 from setuptools import setup
 from catkin_pkg.python_setup import generate_distutils_setup
 
-setup(**generate_distutils_setup(packages=["quadrivio_runtime"], package_dir={"": "src"}))
+setup(**generate_distutils_setup(packages=["quadrivio_runtime", "quadrivio_runtime.ros"], package_dir={"": "src"}))

@@ -31,8 +31,6 @@ def core_modules():
             parts = rel[:-3].split(os.sep)
             if "ros" in parts:
                 continue
-            if parts[0] == "quadrivio_runtime" and parts[-1] not in ("lockstep_wire", "__init__", "quadrivio_runtime"):
-                continue  # the package that owns rospy's internals (its pure wire format is a core)
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             mods.append(".".join(parts))

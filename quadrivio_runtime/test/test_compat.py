@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from quadrivio_runtime import compat
+from quadrivio_runtime.ros import compat
 
 
 def test_the_installed_rospy_is_the_one_written_against():
@@ -34,14 +34,14 @@ def test_a_node_importing_the_runtime_on_a_faked_rospy_fails_at_import(tmp_path)
     """A whole process: rospy's package.xml says 1.16.3 (faked through the lookup), and
     importing any module of the runtime that touches rospy fails with the message."""
     code = (
-        "import quadrivio_runtime.compat as c\n"  # the real import passes; now fake the lookup and re-import
+        "import quadrivio_runtime.ros.compat as c\n"  # the real import passes; now fake the lookup and re-import
         "import importlib, sys\n"
         "c.rospy_version = lambda: '1.16.3'\n"
         "src = open(c.__file__).read().replace('_VERSION = rospy_version()', \"_VERSION = '1.16.3'\")\n"
-        "sys.modules.pop('quadrivio_runtime.compat')\n"
+        "sys.modules.pop('quadrivio_runtime.ros.compat')\n"
         "try:\n"
-        "    exec(compile(src, c.__file__, 'exec'), {'__name__': 'quadrivio_runtime.compat', "
-        "'__package__': 'quadrivio_runtime'})\n"
+        "    exec(compile(src, c.__file__, 'exec'), {'__name__': 'quadrivio_runtime.ros.compat', "
+        "'__package__': 'quadrivio_runtime.ros'})\n"
         "except ImportError as exc:\n"
         "    print('REFUSED', exc)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
@@ -61,5 +61,5 @@ def test_importing_the_package_imports_nothing_of_ros():
 def test_the_mend_is_applied_by_the_import():
     from rospy.impl.registration import RegManager
 
-    importlib.import_module("quadrivio_runtime.timer")
+    importlib.import_module("quadrivio_runtime.ros.timer")
     assert getattr(RegManager.publisher_update, "quadrivio_mended", False)

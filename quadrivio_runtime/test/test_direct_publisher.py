@@ -14,7 +14,7 @@ from rospy.impl.tcpros_base import TCPROSTransport
 from rospy.impl.tcpros_pubsub import TCPROSPub
 from std_msgs.msg import String
 
-from quadrivio_runtime.direct import InPlaceConnection, in_place
+from quadrivio_runtime.ros.direct import InPlaceConnection, in_place
 
 PAD = "x" * 2000
 

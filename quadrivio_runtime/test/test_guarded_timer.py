@@ -7,8 +7,8 @@ import pytest
 import rospy
 import rospy.rostime
 
-from quadrivio_runtime import timer as T
-from quadrivio_runtime.timer import guarded_timer
+from quadrivio_runtime.ros import timer as T
+from quadrivio_runtime.ros.timer import guarded_timer
 
 
 def wait(cond, timeout=5.0):

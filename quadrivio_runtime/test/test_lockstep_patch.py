@@ -1,4 +1,4 @@
-"""lockstep's patch of rospy (quadrivio_runtime.lockstep._patch) on rospy's own publisher and
+"""lockstep's patch of rospy (quadrivio_runtime.ros.lockstep._patch) on rospy's own publisher and
 subscriber implementations and TCPROS transports over loopback sockets (no master):
 
 * a member holds back what arrives on the loop's topics: rospy's receive loop hands the
@@ -21,7 +21,7 @@ from rospy.impl.tcpros_pubsub import TCPROSSub
 from rospy.topics import _PublisherImpl, _SubscriberImpl
 from std_msgs.msg import String
 
-from quadrivio_runtime import lockstep
+from quadrivio_runtime.ros import lockstep
 
 
 def frame(text):

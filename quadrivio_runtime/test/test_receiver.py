@@ -16,7 +16,7 @@ from rospy.impl.tcpros_base import TCPROSTransport
 from rospy.impl.tcpros_pubsub import TCPROSSub
 from std_msgs.msg import Header, String
 
-from quadrivio_runtime.receiver import Receiver
+from quadrivio_runtime.ros.receiver import Receiver
 
 
 def frame(text: str) -> bytes:
@@ -172,7 +172,7 @@ def test_release_gives_every_connection_back_to_a_rospy_thread_with_what_was_hal
 
 def test_install_hands_rospys_connections_to_one_receiver_and_release_without_one_is_harmless(monkeypatch):
     import rospy.impl.tcpros_pubsub as pubsub
-    from quadrivio_runtime import receiver as R
+    from quadrivio_runtime.ros import receiver as R
 
     monkeypatch.setattr(R, "_receiver", None)
     calls = []

@@ -4,8 +4,8 @@ import threading
 
 from rospy.impl.registration import RegManager
 
-from quadrivio_runtime import compat as ros_package  # installs the mend on import
-from quadrivio_runtime import rospy_mends
+from quadrivio_runtime.ros import compat as ros_package  # installs the mend on import
+from quadrivio_runtime.ros import rospy_mends
 
 
 class Handler:

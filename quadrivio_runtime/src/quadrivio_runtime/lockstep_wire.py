@@ -1,4 +1,4 @@
-"""Names shared by both sides of lockstep (``quadrivio_runtime.lockstep``, the
+"""Names shared by both sides of lockstep (``quadrivio_runtime.ros.lockstep``, the
 members; ``quadrivio_sim.lockstep``, the simulator). ROS-free."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The simulator's side of lockstep (see ``quadrivio_runtime.lockstep`` for the
+"""The simulator's side of lockstep (see ``quadrivio_runtime.ros.lockstep`` for the
 protocol): which members a round must name, what its watermark is, and when the graph is
 ready to start. ROS-free; the node feeds it the members' reports and its own counts.
 

@@ -22,9 +22,9 @@ from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
 from quadrivio_description.config import param
-from quadrivio_runtime import diagnostics, init_node
-from quadrivio_runtime.params import node_params
-from quadrivio_runtime.timer import guarded_timer
+from quadrivio_runtime.ros import diagnostics, init_node
+from quadrivio_runtime.ros.params import node_params
+from quadrivio_runtime.ros.timer import guarded_timer
 
 from ..nmea import NO_FIX, Fix, NmeaFixParser, Velocity
 from ..transports import serial_lines, tcp_lines

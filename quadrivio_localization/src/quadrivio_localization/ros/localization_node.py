@@ -28,15 +28,15 @@ from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 
-from quadrivio_runtime import init_node
+from quadrivio_runtime.ros import init_node
 from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.config import param
-from quadrivio_runtime import diagnostics
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import (node_params, private_params, site_params, split_params,
+from quadrivio_runtime.ros import diagnostics
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning

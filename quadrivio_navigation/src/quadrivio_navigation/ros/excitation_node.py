@@ -21,12 +21,12 @@ from typing import Optional
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from quadrivio_runtime import init_node
+from quadrivio_runtime.ros import init_node
 from quadrivio_description.config import ConfigError
-from quadrivio_runtime import diagnostics
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import fatal, node_params, with_scenario
-from quadrivio_runtime.timer import guarded_timer, on_clock_jump, publish
+from quadrivio_runtime.ros import diagnostics
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import fatal, node_params, with_scenario
+from quadrivio_runtime.ros.timer import guarded_timer, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
 
 from ..excitation import ExcitationParams, build

@@ -36,11 +36,11 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_runtime import init_node
-from quadrivio_runtime import diagnostics
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import node_params, vehicle_params, with_scenario
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_runtime.ros import init_node
+from quadrivio_runtime.ros import diagnostics
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import node_params, vehicle_params, with_scenario
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint
 
 from ..follower import ABORTED, FOLLOWING, STATUS_NAMES, FollowerConfig, PurePursuit, make_route

@@ -33,12 +33,12 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
-from quadrivio_runtime import init_node
+from quadrivio_runtime.ros import init_node
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
-from quadrivio_runtime import diagnostics
-from quadrivio_runtime.params import node_params, private_params, split_params, vehicle_params, with_scenario
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_runtime.ros import diagnostics
+from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
 from ..attitude import Attitude

@@ -23,8 +23,8 @@ import rospy
 from nav_msgs.msg import MapMetaData, OccupancyGrid
 from nav_msgs.srv import GetMap, GetMapResponse
 
-from quadrivio_runtime import init_node
-from quadrivio_runtime.params import fatal, node_params, with_scenario
+from quadrivio_runtime.ros import init_node
+from quadrivio_runtime.ros.params import fatal, node_params, with_scenario
 
 from ..maps import MapError, MapParams, OccupancyGrid as Grid, load_map, resolve_map_file
 from .conversions import pose_stamped

@@ -21,8 +21,8 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_runtime import init_node
-from quadrivio_runtime.params import fatal, node_params, with_scenario
+from quadrivio_runtime.ros import init_node
+from quadrivio_runtime.ros.params import fatal, node_params, with_scenario
 
 from ..paths import PathParams, path_points
 from .conversions import path_msg, pose_stamped, yaw_of

@@ -47,11 +47,11 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_runtime import init_node
+from quadrivio_runtime.ros import init_node
 from quadrivio_description.config import param
-from quadrivio_runtime.params import (fatal, node_params, private_params, split_params, vehicle_params,
+from quadrivio_runtime.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
                                              with_scenario)
-from quadrivio_runtime.timer import guarded_timer, input_guard, publish
+from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus

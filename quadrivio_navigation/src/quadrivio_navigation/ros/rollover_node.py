@@ -21,13 +21,13 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import Imu
 
-from quadrivio_runtime import init_node
+from quadrivio_runtime.ros import init_node
 from quadrivio_description.config import param
 from quadrivio_description.frames import rotate
-from quadrivio_runtime import diagnostics
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import node_params, private_params, split_params, vehicle_params
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_runtime.ros import diagnostics
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 
 from ..msg import RolloverRisk
 from ..rollover import LEVEL_NAMES, OK, TRIP, RolloverMonitor, RolloverParams

@@ -18,7 +18,7 @@ import rospy
 
 from quadrivio_description.config import ConfigError, replace_nested
 from quadrivio_description.frames import matrix_from_quaternion
-from quadrivio_runtime.params import fatal, run_seed
+from quadrivio_runtime.ros.params import fatal, run_seed
 
 Mount = Tuple[np.ndarray, np.ndarray]  # translation (3,), rotation 3 x 3 of a frame in the base frame
 

@@ -36,10 +36,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import param
-from quadrivio_runtime import diagnostics, init_node, lockstep
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import node_params, private_params, split_params
-from quadrivio_runtime.timer import guarded_timer, on_clock_jump, publish
+from quadrivio_runtime.ros import diagnostics, init_node, lockstep
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import node_params, private_params, split_params
+from quadrivio_runtime.ros.timer import guarded_timer, on_clock_jump, publish
 
 from .. import protocol
 from ..client import Multiplexer, PlcClientParams, PlcClock, PlcLink, mode_without_session

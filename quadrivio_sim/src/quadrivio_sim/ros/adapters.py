@@ -23,7 +23,7 @@ imu/mag MagneticField), ``laser`` (scan_in -> scan LaserScan), ``camera`` (image
 camera_info_in -> image_raw, camera_info). All topic names are relative, remapped in launch.
 
 Publishing. Each output is written to its subscribers in the delivering thread while they
-keep up (``quadrivio_runtime.direct``), with the queue sizes a real driver's
+keep up (``quadrivio_runtime.ros.direct``), with the queue sizes a real driver's
 publisher has only for a subscriber that falls behind; readings are delivered by the
 thread that receives /clock (no thread wake-up per tick).
 
@@ -32,7 +32,7 @@ simulator (the paper's layer 2), which is how ``adapters.launch`` runs them: eve
 process pays for each /clock tick, its timer threads and its connections, whatever it
 publishes (about 0.014 CPU s per simulated second each, measured), and five adapters in
 one process pay it once. Its inputs are read by one thread
-(``quadrivio_runtime.receiver``): they all arrive with the simulator's step, and
+(``quadrivio_runtime.ros.receiver``): they all arrive with the simulator's step, and
 with a rospy thread per input the threads woken together fought for the GIL (a sixth
 less CPU for the process). Its parameters, after costmap_2d's plugins::
 
@@ -60,10 +60,10 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, NavSatFix, NavSatStatus
 
-from quadrivio_runtime import diagnostics, init_node
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
-from quadrivio_runtime.timer import check_clock, guarded_timer, input_guard, on_clock_jump
+from quadrivio_runtime.ros import diagnostics, init_node
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,

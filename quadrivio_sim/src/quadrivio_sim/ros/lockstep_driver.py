@@ -1,5 +1,5 @@
 """The simulator's ROS side of lockstep: arms the members, then after every physics step
-runs rounds until the loop is quiet (protocol: ``quadrivio_runtime.lockstep``;
+runs rounds until the loop is quiet (protocol: ``quadrivio_runtime.ros.lockstep``;
 decisions: ``quadrivio_sim.lockstep``). While it waits it serves the emulated PLC's port,
 so that a frame the client sends inside a round is handled before the next step."""
 
@@ -16,7 +16,7 @@ import rospy
 from std_msgs.msg import String
 
 from quadrivio_runtime.lockstep_wire import ARMED_PARAM, REPORT, command_topic, member_names
-from quadrivio_runtime.lockstep import count_publications, publications
+from quadrivio_runtime.ros.lockstep import count_publications, publications
 
 from ..lockstep import Coordinator
 from ..plc_emulator import PlcServer

@@ -73,9 +73,9 @@ from sensor_msgs.msg import CameraInfo, Image, Imu, JointState, LaserScan, Magne
 from std_srvs.srv import Trigger, TriggerResponse
 
 from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param
-from quadrivio_runtime import diagnostics, init_node
-from quadrivio_runtime.direct import direct_publisher
-from quadrivio_runtime.params import (fatal, node_params, private_params, run_seed, site_params,
+from quadrivio_runtime.ros import diagnostics, init_node
+from quadrivio_runtime.ros.direct import direct_publisher
+from quadrivio_runtime.ros.params import (fatal, node_params, private_params, run_seed, site_params,
                                              split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
 from quadrivio_navigation.maps import resolve_map_file
@@ -85,7 +85,7 @@ from quadrivio_sim.msg import RawGps
 from quadrivio_sim.srv import Step, StepResponse
 
 from . import converters
-from quadrivio_runtime.clock import set_own_time, take_clock_ownership
+from quadrivio_runtime.ros.clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
 from ..actors import load_actors
 from ..actuators import ActuatorParams
@@ -232,7 +232,7 @@ class SimNode:
 
         # Written in this thread while each subscriber keeps up, not by a writer thread per
         # subscriber (a thread wake-up per message and subscriber: see
-        # quadrivio_runtime.direct); queued for a subscriber only while it is behind.
+        # quadrivio_runtime.ros.direct); queued for a subscriber only while it is behind.
         self.pub_clock = direct_publisher("/clock", Clock, queue_size=1000)
         self.pub_gt = direct_publisher("ground_truth/odom", Odometry, queue_size=50)
         self.pub_joints = direct_publisher("joint_states", JointState, queue_size=10)

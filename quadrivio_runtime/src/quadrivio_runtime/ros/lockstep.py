@@ -9,7 +9,7 @@ every member node in rounds, like a bulk-synchronous program:
 
 * a member queues what it receives on the loop's topics (counting the messages per topic
   and publisher) instead of handling it at once, and its periodic work
-  (:func:`quadrivio_runtime.timer.guarded_timer`) no longer runs on a thread;
+  (:func:`quadrivio_runtime.ros.timer.guarded_timer`) no longer runs on a thread;
 * the simulator steps, publishes the tick's readings and ``/clock``, then sends rounds on
   ``/lockstep/command``: each names the sim time, the *watermark* (per topic and
   publisher, how many messages had been published when the round began) and whether the
@@ -54,7 +54,7 @@ compat.checked()  # rospy's version checked and the mends applied before rospy's
 
 import rospy
 
-from .lockstep_wire import ACK_TOPIC, PLC, REPORT, STATE_TOPIC, command_topic, excluded
+from ..lockstep_wire import ACK_TOPIC, PLC, REPORT, STATE_TOPIC, command_topic, excluded
 
 HELLO_PERIOD = 0.2  # [s wall] reports before arming, so that the simulator sees the member
 WAIT_TIMEOUT = 10.0  # [s wall] a round waits this long for its messages before reporting an error
