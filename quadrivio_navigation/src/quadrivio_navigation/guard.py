@@ -100,7 +100,7 @@ class GuardParams:
     stop_brake: float = param(1.0, lo=0.0, hi=1.0, doc="brake demand of a stop")
     slope_unknown: float = param(0.15, lo=0.0, hi=1.0, unit="rad",
                                  doc="downhill slope assumed while the IMU is silent")
-    slope_tau: float = param(1.0, lo=0.01, hi=10.0, unit="s",
+    slope_tau: float = param(4.0, lo=0.01, hi=30.0, unit="s",
                              doc="time constant of the attitude filter's pull toward the accelerometer")
     imu_timeout: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="after this the slope is slope_unknown")
     zone: Tuple[Tuple[float, float], ...] = param(
