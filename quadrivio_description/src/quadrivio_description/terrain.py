@@ -1,9 +1,10 @@
-"""The site's terrain: flat ground, a DEM image, or a procedural rough surface.
+"""The site's terrain: flat ground, a DEM image, a surveyed DEM GeoTIFF, or a procedural rough surface.
 
 Shared by the simulator (a PyBullet heightfield) and the planner (slope cost and slopes
 too steep to drive), so both see the same ground. A terrain is a regular grid of heights
 ``z[i, j]`` at ``x = x0 + j * res`` and ``y = y0 + i * res`` (row ``i`` northwards,
-column ``j`` eastwards), centred on the world origin; :meth:`Heightfield.height` gives
+column ``j`` eastwards), centred on the world origin (a GeoTIFF DEM is resampled onto
+such a grid in the site's local frame: :mod:`quadrivio_description.georaster`); :meth:`Heightfield.height` gives
 the bilinear height anywhere (spawning, tests), :meth:`Heightfield.heights` for arrays.
 The procedural surface is drawn from the generator it is given: the simulator passes
 ``numpy.random.default_rng(seed)`` before any other draw, so
@@ -32,9 +33,16 @@ from quadrivio_description.config import ConfigError, param
 
 @dataclass(frozen=True)
 class TerrainParams:
-    kind: str = param("flat", choices=("flat", "image", "procedural"),
-                      doc="flat plane, heightfield from a DEM image, or procedural rough ground")
-    image: str = param("", doc="DEM image (PNG greyscale, PGM, or .npy of heights in m) for kind=image")
+    kind: str = param("flat", choices=("flat", "image", "geotiff", "procedural"),
+                      doc="flat plane, heightfield from a DEM image, a georeferenced DEM (GeoTIFF) in the site's "
+                          "frame, or procedural rough ground")
+    image: str = param("", doc="DEM image (PNG greyscale, PGM, or .npy of heights in m) for kind=image; the DEM "
+                               "GeoTIFF (any CRS) for kind=geotiff, sampled over size x size m about the site's datum")
+    vertical: str = param("origin", choices=("origin", "datum"),
+                          doc="kind=geotiff: heights relative to the DEM at the map origin, or to the datum's "
+                              "altitude (a DEM of ellipsoidal heights)")
+    z_scale: float = param(1.0, lo=1e-6, hi=1e6, unit="m",
+                           doc="kind=geotiff: metres per DEM unit (0.3048 for a DEM in feet)")
     size: float = param(200.0, lo=10.0, hi=5000.0, unit="m", doc="side of the square terrain patch")
     resolution: float = param(0.5, lo=0.05, hi=10.0, unit="m", doc="grid spacing")
     height_range: float = param(2.0, lo=0.0, hi=500.0, unit="m",
@@ -150,10 +158,20 @@ def _read_pgm(path: str) -> np.ndarray:
     return data.astype(float) / maxval
 
 
-def build_heightfield(p: TerrainParams, rng: np.random.Generator) -> Optional[Heightfield]:
-    """The heightfield for ``p``; ``None`` for flat ground."""
+def build_heightfield(p: TerrainParams, rng: np.random.Generator, frame=None) -> Optional[Heightfield]:
+    """The heightfield for ``p``; ``None`` for flat ground. ``frame``: the site's
+    :class:`~quadrivio_description.geodesy.LocalFrame` for kind=geotiff (default: the
+    datum of ``config/site.yaml``)."""
     if p.kind == "flat":
         return None
+    if p.kind == "geotiff":
+        from .georaster import dem_heightfield
+
+        if frame is None:
+            from .site import load_site
+
+            frame = load_site().local_frame()
+        return dem_heightfield(p.image, frame, p.size, p.resolution, p.vertical, p.z_scale)
     if p.kind == "image":
         dem = read_dem(p.image)
         if p.image.endswith(".npy"):

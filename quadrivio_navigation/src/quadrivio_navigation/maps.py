@@ -31,6 +31,12 @@ thresholds of 0.9 / 0.8), naming the mode, thresholds and negate and what the im
 hold read otherwise. ``plan``, the map server, the planner (in every status) and the
 simulator say it.
 
+Georeferenced maps (surveys): ``image`` may be a GeoTIFF, placed by its own CRS and
+geotransform (no ``origin``; ``resolution`` optional: the grid's, default the raster's), or
+a plain image with ``crs: EPSG:32632`` and ``origin`` its lower-left corner in that CRS.
+Either is resampled into the map frame about the site's datum (``config/site.yaml``):
+:func:`georeferenced`, :mod:`quadrivio_description.georaster`.
+
 The grid's row 0 is the image's bottom row (``y`` grows with the row), as in
 ``nav_msgs/OccupancyGrid``. ROS-free.
 """
@@ -155,9 +161,11 @@ class MapMetadata:
     negate: bool
     mode: str
     path: str = ""  # the YAML file
+    crs: str = ""  # the coordinate reference system of ``origin`` and the image ("": the map frame itself)
+    geotiff: bool = False  # the image is a georeferenced raster: its own CRS and geotransform place it
 
 
-MAP_KEYS = ("image", "resolution", "origin", "occupied_thresh", "free_thresh", "negate", "mode")
+MAP_KEYS = ("image", "resolution", "origin", "occupied_thresh", "free_thresh", "negate", "mode", "crs")
 
 
 def read_metadata(path: str) -> MapMetadata:
@@ -176,13 +184,30 @@ def read_metadata(path: str) -> MapMetadata:
     if not isinstance(image, str) or not image:
         raise MapError(f"map {path}: 'image' is missing (the PGM or PNG file of the map)")
     image = image if os.path.isabs(image) else os.path.join(os.path.dirname(os.path.abspath(path)), image)
-    resolution = _number(data, "resolution", f"map {path}")
-    if not resolution > 0.0:
-        raise MapError(f"map {path}: 'resolution' = {resolution} must be > 0 m/pixel")
-    origin = data.get("origin")
-    if (not isinstance(origin, (list, tuple)) or len(origin) != 3
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in origin)):
-        raise MapError(f"map {path}: 'origin' = {origin!r} must be [x, y, yaw] (m, m, rad)")
+    crs = data.get("crs", "")
+    if not isinstance(crs, str):
+        raise MapError(f"map {path}: 'crs' = {crs!r} must be a string such as 'EPSG:32632'")
+    geotiff = os.path.splitext(image)[1].lower() in (".tif", ".tiff")
+    if geotiff:  # placed by its own CRS and geotransform; resolution: the grid's (default the raster's)
+        if "origin" in data or crs:
+            raise MapError(f"map {path}: the GeoTIFF {os.path.basename(image)} places itself (its own CRS and "
+                           f"geotransform): remove 'origin'{' and crs' if crs else ''}")
+        resolution = _number(data, "resolution", f"map {path}", 0.0)
+        if resolution < 0.0:
+            raise MapError(f"map {path}: 'resolution' = {resolution} must be > 0 m/pixel")
+        origin = [0.0, 0.0, 0.0]
+    else:
+        resolution = _number(data, "resolution", f"map {path}")
+        if not resolution > 0.0:
+            raise MapError(f"map {path}: 'resolution' = {resolution} must be > 0 m/pixel")
+        origin = data.get("origin")
+        if (not isinstance(origin, (list, tuple)) or len(origin) != 3
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                           for v in origin)):
+            raise MapError(f"map {path}: 'origin' = {origin!r} must be [x, y, yaw] (m, m, rad)")
+        if crs and origin[2] != 0.0:
+            raise MapError(f"map {path}: with a 'crs' the origin's yaw must be 0 (the image's rows run along the "
+                           f"CRS's x axis), got {origin[2]}")
     occ = _number(data, "occupied_thresh", f"map {path}")
     free = _number(data, "free_thresh", f"map {path}")
     if not 0.0 <= free <= occ <= 1.0:
@@ -194,7 +219,7 @@ def read_metadata(path: str) -> MapMetadata:
     if mode not in MODES:
         raise MapError(f"map {path}: 'mode' = {mode!r} is not one of {', '.join(MODES)}")
     return MapMetadata(image, resolution, (float(origin[0]), float(origin[1]), float(origin[2])), occ, free,
-                       bool(negate), mode, path)
+                       bool(negate), mode, path, crs, geotiff)
 
 
 # -------------------------------------------------------------------------- image
@@ -325,16 +350,71 @@ def grid_warnings(data: np.ndarray, what: str) -> Tuple[str, ...]:
             f"unknown {_pct(unk)}); check the map's mode, thresholds and negate",)
 
 
-def load_map(path: str) -> OccupancyGrid:
+def load_map(path: str, frame=None) -> OccupancyGrid:
     """A map_server map (YAML and image) as an :class:`OccupancyGrid`; :class:`MapError`
     names the file and what is wrong with it. The grid's ``summary`` says what it holds and
-    its ``warnings`` what looks misread (callers print or log them: see :func:`map_report`)."""
+    its ``warnings`` what looks misread (callers print or log them: see :func:`map_report`).
+
+    A georeferenced map (a GeoTIFF image, or a YAML with ``crs``) is resampled into the map
+    frame about the site's datum (``frame``: a :class:`~quadrivio_description.geodesy.LocalFrame`;
+    default: ``config/site.yaml``'s): :func:`georeferenced`."""
     meta = read_metadata(path)
+    if meta.geotiff or meta.crs:
+        return georeferenced(meta, frame)
     pixels, has_alpha = read_image(meta.image)
     data = occupancy_from_pixels(pixels, has_alpha, meta.mode, meta.negate, meta.occupied_thresh, meta.free_thresh,
                                  f"map image {meta.image}")
     summary, warnings = map_report(meta, pixels, has_alpha, data)
     return OccupancyGrid(np.ascontiguousarray(data), meta.resolution, meta.origin, summary, warnings)
+
+
+def georeferenced(meta: MapMetadata, frame=None) -> OccupancyGrid:
+    """A georeferenced map in the map frame: the image's pixels resampled (nearest
+    neighbour) onto a north-up grid about the site's datum at the map's resolution, then
+    read by map_server's rule; cells the image does not cover are unknown.
+
+    * a GeoTIFF (``image: site.tif``): its CRS and geotransform place it; ``resolution`` is
+      the grid's (default: the raster's pixel size), no ``origin``;
+    * a plain image with ``crs: EPSG:...``: ``origin`` is its lower-left corner in that CRS
+      and ``resolution`` its pixel size in the CRS's units (metres)."""
+    from quadrivio_description.georaster import Raster, read_geotiff, resample_to_local, _crs
+
+    if frame is None:
+        from quadrivio_description.site import load_site
+
+        frame = load_site().local_frame()
+    try:
+        if meta.geotiff:
+            raster = read_geotiff(meta.image)
+            bands = raster.bands
+            if bands.max(initial=0.0) > 255.0:  # 16-bit grey, as read_image scales it
+                raster.bands = bands * (255.0 / 65535.0)
+            has_alpha = bands.shape[0] in (2, 4)
+            t = raster.transform
+            resolution = meta.resolution or float(math.sqrt(abs(t[1] * t[5] - t[2] * t[4])))
+        else:
+            pixels, has_alpha = read_image(meta.image)
+            h, w = pixels.shape[:2]
+            x0, y0, res = meta.origin[0], meta.origin[1], meta.resolution
+            raster = Raster(np.moveaxis(pixels, -1, 0), _crs(meta.crs, f"map {meta.path}"),
+                            (x0, res, 0.0, y0 + h * res, 0.0, -res), np.ones((h, w), bool), meta.image)
+            resolution = res
+        vals, covered, origin = resample_to_local(raster, frame, resolution)
+    except MapError:
+        raise
+    except ConfigError as exc:
+        raise MapError(f"map {meta.path}: {exc}") from exc
+    pixels = np.flipud(vals)  # row 0 the top, as an image
+    data = occupancy_from_pixels(pixels, has_alpha, meta.mode, meta.negate, meta.occupied_thresh, meta.free_thresh,
+                                 f"map image {meta.image}")
+    data[~covered] = UNKNOWN
+    placed = MapMetadata(meta.image, resolution, (origin[0], origin[1], 0.0), meta.occupied_thresh, meta.free_thresh,
+                         meta.negate, meta.mode, meta.path, meta.crs, meta.geotiff)
+    summary, warnings = map_report(placed, pixels, has_alpha, data)
+    crs_name = getattr(raster.crs, "name", str(raster.crs))
+    summary += (f"; georeferenced ({crs_name}), resampled about the datum {frame.lat0:.6f}, {frame.lon0:.6f}: "
+                f"lower-left corner at ({origin[0]:.1f}, {origin[1]:.1f}) m, {100.0 * covered.mean():.0f} % covered")
+    return OccupancyGrid(np.ascontiguousarray(data), resolution, (origin[0], origin[1], 0.0), summary, warnings)
 
 
 def resolve_map_file(file: str, scenario_file: str = "") -> str:

@@ -1,6 +1,8 @@
 """``rosrun quadrivio_navigation plan MAP.yaml --start X,Y,YAW --goal X,Y,YAW [--planner lattice|ompl] --out DIR``
 
-Plans once, offline, on a map_server map and writes:
+Plans once, offline, on a map_server map (a georeferenced one too: a GeoTIFF, or an image
+with a ``crs``, placed about ``--site``'s datum), with ``--dem SURVEY.tif`` on the site's
+terrain (slope cost, slopes beyond the roll-over limit blocked), and writes:
 
 * ``DIR/path.csv``: ``x, y, yaw, direction, s`` per pose (map frame, m and rad;
   direction +1 forward, -1 reverse for the motion to the next pose; s the arc length);
@@ -172,6 +174,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--seed", type=int, default=None, help="seed of the sampling planners")
     ap.add_argument("--params", action="append", default=[], help="planner YAML overriding config/planner.yaml")
     ap.add_argument("--vehicle", default="", help="vehicle YAML (default: quadrivio_description's)")
+    ap.add_argument("--dem", default="", help="the site's DEM, a GeoTIFF in any CRS: slopes cost, slopes steeper than the "
+                                              "roll-over limit are obstacles")
+    ap.add_argument("--dem-size", type=float, default=0.0,
+                    help="side [m] of the DEM's square about the datum to use (default: the map's extent)")
+    ap.add_argument("--site", default="", help="site YAML whose datum places georeferenced maps and DEMs "
+                                               "(default: quadrivio_description's config/site.yaml)")
     ap.add_argument("--out", required=True, help="output folder")
     raw = [a for a in (argv if argv is not None else sys.argv[1:]) if ":=" not in a]
     # "--start -3,2,0": a negative pose would read as an option; glue it to its flag
@@ -196,11 +204,27 @@ def main(argv: Optional[List[str]] = None) -> int:
             over["seed"] = args.seed
         params = load_params(args.params, over)
         vehicle = load_vehicle(args.vehicle)
-        grid = load_map(args.map)
+        from quadrivio_description.site import load_site
+
+        frame = load_site(args.site).local_frame()
+        grid = load_map(args.map, frame)
         print(f"[plan] {grid.summary}", flush=True)
         for warning in grid.warnings:
             print(f"[plan] WARNING: {warning}", file=sys.stderr, flush=True)
-        planner = Planner(grid, vehicle, params)
+        heights, rollover = None, None
+        if args.dem:
+            from quadrivio_description.georaster import dem_heightfield
+            from .rollover import RolloverParams
+
+            w, h = grid.size
+            ox, oy, _ = grid.origin
+            size = args.dem_size or 2.0 * max(abs(ox), abs(oy), abs(ox + w), abs(oy + h)) + 2.0
+            res = max(grid.resolution, 0.5)
+            hf = dem_heightfield(args.dem, frame, size, res)
+            heights, rollover = hf.heights, RolloverParams()
+            print(f"[plan] DEM {args.dem}: {size:.0f} m about the datum at {res:g} m, heights "
+                  f"{hf.z.min():+.1f}..{hf.z.max():+.1f} m from the origin's", flush=True)
+        planner = Planner(grid, vehicle, params, heights, rollover)
         r = planner.plan(start, goal, args.budget)
     except (ConfigError, OSError) as exc:
         print(f"plan: {exc}", file=sys.stderr)

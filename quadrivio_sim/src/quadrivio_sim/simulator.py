@@ -130,15 +130,17 @@ class Simulator:
         self.vehicle = vehicle
         self.dt = params.physics.dt
         self.rng = np.random.default_rng(params.seed)
+        self.site = site or load_site()
+        frame = self.site.local_frame()  # places georeferenced maps and DEMs
         blocks = []
         self.map_report: Tuple[str, ...] = ()  # the map's summary and warnings (the node logs them)
         if params.map.file:
-            grid = load_map(params.map.file)  # MapError names the file and the problem
+            grid = load_map(params.map.file, frame)  # MapError names the file and the problem
             blocks = obstacles_from_grid(grid, params.map.occupied, params.map.tree_size)
             self.map_report = (grid.summary,) + tuple(grid.warnings)
         self.map_blocks = blocks
         self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
-                           params.spawn, blocks, params.map.obstacle_height, params.actors)
+                           params.spawn, blocks, params.map.obstacle_height, params.actors, frame)
         self.actors = [ActorMotion(a) for a in params.actors]
         self.touching: List[int] = []
         self.contacts: List[ContactEvent] = []  # every contact of the run, in order
@@ -149,7 +151,6 @@ class Simulator:
         self.cycle_steps = steps_per_period(1.0 / params.plc.cycle, dt, "plc.cycle")
         self.gps = GpsSensor(self.world)
         self.imu = ImuSensor(self.world, s.imu.rate)
-        self.site = site or load_site()
         self.mag = MagSensor(self.world, self.site.magnetic_field)
         self.lasers = [LaserSensor(self.world, s.lasers, f) for f in s.lasers.frames]
         self.cameras = [CameraSensor(self.world, s.cameras, f) for f in s.cameras.frames] if s.cameras.enabled else []

@@ -139,10 +139,11 @@ class World:
     def __init__(self, vehicle: VehicleParams, urdf_text: str, physics: PhysicsParams,
                  terrain: TerrainParams, rng: np.random.Generator,
                  obstacles: Sequence[Obstacle] = (), spawn: Pose2D = Pose2D(), map_blocks: Sequence = (),
-                 block_height: float = 1.5, actors: Sequence = ()) -> None:
+                 block_height: float = 1.5, actors: Sequence = (), frame=None) -> None:
         """``map_blocks``: obstacles made from a map's occupied cells
         (:func:`quadrivio_navigation.maps.obstacles_from_grid`), ``block_height`` [m] tall;
-        ``actors``: :class:`quadrivio_sim.actors.ActorParams`, bodies moved by :meth:`move_actor`."""
+        ``actors``: :class:`quadrivio_sim.actors.ActorParams`, bodies moved by :meth:`move_actor`;
+        ``frame``: the site's local frame, which places a GeoTIFF DEM (``terrain.kind: geotiff``)."""
         self.v = vehicle
         self.physics = physics
         self.terrain = terrain
@@ -154,7 +155,7 @@ class World:
         self.pb.setPhysicsEngineParameter(fixedTimeStep=physics.dt, numSolverIterations=physics.solver_iterations,
                                           numSubSteps=0, deterministicOverlappingPairs=1)
         self.pb.setGravity(0.0, 0.0, -GRAVITY)
-        self.heightfield: Optional[Heightfield] = build_heightfield(terrain, rng)
+        self.heightfield: Optional[Heightfield] = build_heightfield(terrain, rng, frame)
         self.ground = self._make_ground(self.pb)
         self.obstacle_ids = [self._make_obstacle(self.pb, o) for o in obstacles]
         meshes = self._block_meshes(map_blocks, block_height)

@@ -27,6 +27,7 @@ from quadrivio_runtime.ros import init_node
 from quadrivio_runtime.ros.params import fatal, node_params, with_scenario
 
 from ..maps import MapError, MapParams, OccupancyGrid as Grid, load_map, resolve_map_file
+from .site_inputs import site_frame
 from .conversions import pose_stamped
 
 
@@ -56,7 +57,7 @@ class MapServer:
             return
         t = time.monotonic()
         try:
-            grid = load_map(path)
+            grid = load_map(path, site_frame())
         except MapError as exc:
             fatal(f"cannot load the map: {exc}")
         rospy.loginfo("%s", grid.summary)

@@ -59,7 +59,7 @@ from ..planning import PlannerParams, Planner, PlanResult
 from ..replanning import blocked_reason, known_distance, merge_local
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
-from .site_inputs import scenario_terrain
+from .site_inputs import scenario_terrain, site_frame
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,7 @@ class PlannerNode:
         self._set_status(PlannerStatus.IDLE, "waiting for a map" if not self.node_params.map_file else "loading the map")
         if self.node_params.map_file:
             try:
-                grid = load_map(self.node_params.map_file)
+                grid = load_map(self.node_params.map_file, site_frame())
             except MapError as exc:
                 fatal(f"cannot load the map: {exc}")
             rospy.loginfo("%s", grid.summary)

@@ -4,6 +4,8 @@ surroundings: the scanners' mounts from ``/tf_static`` and the scenario's known 
 * :class:`StaticFrames` keeps every transform of ``/tf_static`` (robot_state_publisher's
   fixed joints: the lasers' mounts) and chains them to ``base_link``. A frame that is not
   on it has no mount: the guard stops for it, the layer drops its scans.
+* :func:`site_frame`: the map frame's datum from ``/site`` (the launch files load it), which
+  places georeferenced maps and DEMs (GeoTIFFs).
 * :func:`scenario_terrain` builds the heights of a scenario whose ``sim: terrain:`` is
   procedural or a DEM (the same seed as the simulator's), or None: with it, the planner
   costs slopes and the guard and the layer take returns on it for the ground.
@@ -56,6 +58,20 @@ class StaticFrames:
         return None
 
 
+def site_frame():
+    """The site's :class:`~quadrivio_description.geodesy.LocalFrame` from ``/site``
+    (``config/site.yaml``'s when the parameter is not set)."""
+    from quadrivio_description.config import from_mapping
+    from quadrivio_description.site import SiteParams, load_site
+
+    if rospy.has_param("/site"):
+        try:
+            return from_mapping(SiteParams, rospy.get_param("/site"), "/site").local_frame()
+        except ConfigError as exc:
+            fatal(f"bad /site: {exc}")
+    return load_site().local_frame()
+
+
 def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.ndarray, np.ndarray], np.ndarray]]:
     """The scenario's terrain heights ``z(x, y)`` [m] (map frame), or None without one."""
     key = "/scenario/sim/terrain"
@@ -65,7 +81,13 @@ def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.nd
 
     try:
         tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
-        hf = build_heightfield(tp, np.random.default_rng(run_seed()))
+        if tp.image:  # relative to the scenario's folder, as the simulator reads it
+            from dataclasses import replace
+
+            from ..maps import resolve_map_file
+
+            tp = replace(tp, image=resolve_map_file(tp.image, rospy.get_param("/scenario/source", "")))
+        hf = build_heightfield(tp, np.random.default_rng(run_seed()), site_frame() if tp.kind == "geotiff" else None)
     except ConfigError as exc:
         fatal(f"bad scenario terrain: {exc}")
     if hf is None:

@@ -165,6 +165,10 @@ class SimNode:
         world_map = dataclasses.replace(world_map, file=resolve_map_file(world_map.file,
                                                                          rospy.get_param("/scenario/source", "")))
         self.sim_params = dataclasses.replace(self.sim_params, map=world_map)
+        terrain = self.sim_params.terrain
+        if terrain.image:  # a DEM image or GeoTIFF: relative to the scenario's folder, as the map
+            self.sim_params = dataclasses.replace(self.sim_params, terrain=dataclasses.replace(
+                terrain, image=resolve_map_file(terrain.image, rospy.get_param("/scenario/source", ""))))
         if rospy.has_param("/run/seed") or rospy.has_param("/scenario/seed"):
             self.sim_params = dataclasses.replace(self.sim_params, seed=run_seed())
         self.vehicle = vehicle_params()
