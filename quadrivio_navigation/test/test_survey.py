@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-rasterio = pytest.importorskip("rasterio")  # Debian's python3-rasterio (make setup)
+import rasterio  # noqa: E402  Debian's python3-rasterio (make setup installs it; no skip)
 
 from quadrivio_description.config import ConfigError  # noqa: E402
 from quadrivio_description.geodesy import LocalFrame  # noqa: E402
