@@ -205,3 +205,18 @@ def test_analyze_reads_the_foreign_bag_and_names_what_it_lacks(twins, capsys):
     assert m["completed"] is None and m["loc_rmse_m"] is None
     assert m["gps_fix_fraction"] is not None and m["gps_fix_fraction"] > 0.9
     assert (out / "trajectory.png").exists() and (out / "control.png").exists()
+
+
+def test_a_wheel_speed_unit_mistake_is_named_from_the_fixes(tmp_path, twins, capsys):
+    """The mapping's wheel speed scale taken for m/s where the raw unit was km/h-like (3.6x):
+    the replay names it against the speed the fixes show; the right scale says nothing."""
+    d, _, foreign, mfile, mapping = twins
+    assert replay([foreign, "--map", mfile, "--out", str(tmp_path / "ok.bag")]) == 0
+    assert "wheel speed" not in capsys.readouterr().err
+    m = yaml.safe_load(yaml.safe_dump(mapping))
+    m["state"]["wheel_speed"]["scale"] = SPEED_SCALE * 3.6
+    path = tmp_path / "kmh.yaml"
+    path.write_text(yaml.safe_dump(m))
+    assert replay([foreign, "--map", str(path), "--out", str(tmp_path / "kmh.bag")]) == 0
+    err = capsys.readouterr().err
+    assert "the wheel speed is 3.6" in err and "km/h taken for m/s" in err, err

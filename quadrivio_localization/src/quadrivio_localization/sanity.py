@@ -3,8 +3,9 @@
 A unit declared wrong in an import mapping (gauss for microtesla, g for m/s^2) gives
 readings off by a round factor. The estimator then fails far from the cause (a GTSAM
 "Indeterminate linear system" for a field of 0.9 T) or, worse, runs on. These checks
-compare a robust level of the readings with what the Earth gives, and name the unit
-mistake the factor points to. ROS-free.
+compare a robust level of the readings with what the Earth gives (and the wheel speed with
+the speed the GPS fixes show while moving), and name the unit mistake the factor points
+to. ROS-free.
 """
 
 from __future__ import annotations
@@ -87,13 +88,77 @@ def check_gravity(specific_forces: Sequence[float], what: str = "the IMU") -> Tu
         text + (f": likely {guess}" if guess else ": a unit or scale mistake (the import mapping's accel_scale)")
 
 
-def check_all(field_t: Sequence[float], forces: Sequence[float]) -> List[Tuple[str, str]]:
-    """The non-empty results of both checks (readings absent: not checked)."""
+SPEED_MIN = 1.0  # [m/s] GPS speeds below this are not compared (the fixes' noise over their spacing)
+SPEED_OK = (0.75, 1.33)  # [1] wheel speed over GPS speed: slip, tyre radius and GPS noise stay within this
+
+
+def gps_speeds(fixes: Sequence[Tuple[float, float, float]], spacing: float = 1.0) -> List[Tuple[float, float, float]]:
+    """(t0, t1, speed [m/s]) over spans of at least ``spacing`` s between fixes ``(t, lat,
+    lon)`` [s, deg, deg] (a local flat-Earth approximation: spans of metres)."""
+    out = []
+    k = 0
+    R = 6371000.0
+    for j in range(1, len(fixes)):
+        t0, la0, lo0 = fixes[k]
+        t1, la1, lo1 = fixes[j]
+        if t1 - t0 < spacing:
+            continue
+        dn = math.radians(la1 - la0) * R
+        de = math.radians(lo1 - lo0) * R * math.cos(math.radians(0.5 * (la0 + la1)))
+        if t1 - t0 <= 3.0 * spacing:  # a gap in the fixes is not a span
+            out.append((t0, t1, math.hypot(de, dn) / (t1 - t0)))
+        k = j
+    return out
+
+
+def check_speed(wheel: Sequence[Tuple[float, float]], fixes: Sequence[Tuple[float, float, float]],
+                wheel_radius: float = 0.0, what: str = "the wheel speed") -> Tuple[str, str]:
+    """(level, text) for the wheel speeds ``(t, v)`` [s, m/s] against the speed the GPS fixes
+    ``(t, lat, lon)`` show while moving: a median ratio far from 1 is a unit mistake (km/h,
+    mph, the wheel's rad/s) or a reversed sign. Too little motion to compare: ("", "")."""
+    wheel = sorted(wheel)
+    times = [t for t, _ in wheel]
+    import bisect
+
+    ratios = []
+    for t0, t1, v in gps_speeds(fixes):
+        if v < SPEED_MIN:
+            continue
+        i, j = bisect.bisect_left(times, t0), bisect.bisect_right(times, t1)
+        if j - i < 2:
+            continue
+        ratios.append(median([wheel[k][1] for k in range(i, j)]) / v)
+    if len(ratios) < 5:
+        return "", ""
+    m = median(ratios)
+    if SPEED_OK[0] <= m <= SPEED_OK[1]:
+        return "", ""
+    text = (f"{what} is {m:.3g} times the speed the GPS fixes show while moving (median of {len(ratios)} spans "
+            f"above {SPEED_MIN:g} m/s)")
+    confusions = [(3.6, "km/h taken for m/s: the import mapping's state: wheel_speed: scale 0.27778 (1/3.6)"),
+                  (1 / 3.6, "a km/h scale (0.27778) applied to data already in m/s"),
+                  (2.23694, "mph taken for m/s: state: wheel_speed: scale 0.44704"),
+                  (1 / 2.23694, "an mph scale (0.44704) applied to data already in m/s"),
+                  (-1.0, "a reversed sign: a negative state: wheel_speed: scale, or a wheel that counts backwards")]
+    if wheel_radius > 0.0:
+        confusions.append((1.0 / wheel_radius, f"the wheel's angular speed (rad/s) taken for m/s: state: wheel_speed: "
+                                               f"scale {wheel_radius:g} (the wheel radius)"))
+    best = min(confusions, key=lambda c: abs(m - c[0]) / abs(c[0]))
+    hint = f": likely {best[1]}" if abs(m - best[0]) / abs(best[0]) < 0.12 else \
+        ": a unit, scale or sign mistake in the import mapping's state, or wheels that slip throughout"
+    return "warn", text + hint
+
+
+def check_all(field_t: Sequence[float], forces: Sequence[float], wheel: Sequence[Tuple[float, float]] = (),
+              fixes: Sequence[Tuple[float, float, float]] = (), wheel_radius: float = 0.0) -> List[Tuple[str, str]]:
+    """The non-empty results of every check (readings absent: not checked)."""
     out = []
     if len(field_t):
         out.append(check_field(field_t))
     if len(forces):
         out.append(check_gravity(forces))
+    if len(wheel) and len(fixes):
+        out.append(check_speed(wheel, fixes, wheel_radius))
     return [r for r in out if r[0]]
 
 

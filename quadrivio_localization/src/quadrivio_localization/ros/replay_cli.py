@@ -144,18 +144,26 @@ def write_decisions_csv(path: str, decisions) -> None:
 SANITY_SAMPLES = 2000  # readings of each kind the unit checks look at (the bag's first)
 
 
-def check_readings(bag, path: str, topics: Dict[str, str], have, imap) -> list:
-    """:func:`sanity.check_all` on the bag's first magnetometer and IMU readings, converted as
-    the replay converts them."""
+SPEED_SPAN = 300.0  # [s] of the bag's start in which the wheel speed is compared with the fixes' speed
+
+
+def check_readings(bag, path: str, topics: Dict[str, str], have, imap, wheel_radius: float = 0.0) -> list:
+    """:func:`sanity.check_all` on the bag's first magnetometer and IMU readings, and its
+    first ``SPEED_SPAN`` s of wheel speeds and fixes, converted as the replay converts them."""
     import genpy
 
-    wanted = {topics[r]: r for r in ("mag", "imu") if topics.get(r) and topics[r] in have}
+    wanted = {topics[r]: r for r in ("mag", "imu", "state", "gps") if topics.get(r) and topics[r] in have}
     strengths: list = []
     forces: list = []
+    wheel: list = []
+    fixes: list = []
     if not wanted:
         return []
+    start = None
     for topic, msg, t in read_messages(bag, path, list(wanted), error=ReplayError):
         role = wanted[topic]
+        start = t.to_sec() if start is None else start
+        late = t.to_sec() - start > SPEED_SPAN
         try:
             if imap is not None:
                 msg = imap.convert(role, msg, t)
@@ -165,13 +173,18 @@ def check_readings(bag, path: str, topics: Dict[str, str], have, imap) -> list:
             elif role == "imu" and len(forces) < SANITY_SAMPLES:
                 a = msg.linear_acceleration
                 forces.append(math.sqrt(a.x ** 2 + a.y ** 2 + a.z ** 2))
+            elif role == "state" and not late and math.isfinite(msg.wheel_speed):
+                wheel.append((msg.header.stamp.to_sec(), float(msg.wheel_speed)))
+            elif role == "gps" and not late and msg.status.status >= 0 and math.isfinite(msg.latitude) and \
+                    math.isfinite(msg.longitude):
+                fixes.append((msg.header.stamp.to_sec(), float(msg.latitude), float(msg.longitude)))
         except ConfigError as exc:
             raise ReplayError(str(exc)) from exc
         except (AttributeError, TypeError, ValueError, genpy.DeserializationError):
             continue  # the replay itself says which messages are unusable
-        if len(strengths) >= SANITY_SAMPLES and len(forces) >= SANITY_SAMPLES:
+        if len(strengths) >= SANITY_SAMPLES and len(forces) >= SANITY_SAMPLES and late:
             break
-    return sanity.check_all(strengths, forces)
+    return sanity.check_all(strengths, forces, wheel, fixes, wheel_radius)
 
 
 def run(args: argparse.Namespace) -> Dict[str, Any]:
@@ -183,7 +196,8 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     from . import messages
 
     params, node = load_params(args.params)
-    loc = Localizer(params, load_vehicle(args.vehicle), load_site(args.site))
+    vehicle = load_vehicle(args.vehicle)
+    loc = Localizer(params, vehicle, load_site(args.site))
     bag = open_bag(args.bag, ReplayError)
     topics = {"gps": args.gps, "imu": args.imu, "mag": args.mag, "state": args.state}
     imap = None
@@ -214,7 +228,7 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
                 print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
             # the readings' physical sense first: a unit declared wrong is named here, not by a
             # GTSAM traceback ("Indeterminate linear system" for a field read as 0.9 T)
-            checks = check_readings(bag, args.bag, topics, have, imap)
+            checks = check_readings(bag, args.bag, topics, have, imap, vehicle.wheel_radius)
             for _level, text in checks:
                 print(f"[replay] WARNING: {text}", file=sys.stderr)
             error = sanity.first_error(checks)
