@@ -13,8 +13,8 @@ import rasterio  # noqa: E402  Debian's python3-rasterio (make setup installs it
 
 from quadrivio_description.config import ConfigError  # noqa: E402
 from quadrivio_description.geodesy import LocalFrame  # noqa: E402
-from quadrivio_description.georaster import crs_to_local, local_to_crs  # noqa: E402
-from quadrivio_description.terrain import TerrainParams, build_heightfield  # noqa: E402
+from quadrivio_terrain.georaster import crs_to_local, local_to_crs  # noqa: E402
+from quadrivio_terrain.terrain import TerrainParams, build_heightfield  # noqa: E402
 from quadrivio_description.vehicle import load_vehicle  # noqa: E402
 from quadrivio_navigation.costmap import Footprint  # noqa: E402
 from quadrivio_navigation.maps import MapError, OCCUPIED, UNKNOWN, load_map, obstacles_from_grid  # noqa: E402

@@ -15,7 +15,7 @@ from quadrivio_sim.actuators import load_actuators  # noqa: E402
 from quadrivio_sim.paths import package_file  # noqa: E402
 from quadrivio_sim.script import ScriptRow, SetpointScript  # noqa: E402
 from quadrivio_sim.simulator import SimParams, Simulator  # noqa: E402
-from quadrivio_description.terrain import TerrainParams, build_heightfield, read_dem  # noqa: E402
+from quadrivio_terrain.terrain import TerrainParams, build_heightfield, read_dem  # noqa: E402
 from quadrivio_sim.world import quat_to_rpy  # noqa: E402
 
 

@@ -17,7 +17,7 @@ import numpy as np
 import rasterio
 from rasterio.transform import from_origin
 
-from quadrivio_description.georaster import crs_to_local, local_to_crs
+from quadrivio_terrain.georaster import crs_to_local, local_to_crs
 from quadrivio_description.site import load_site
 
 CRS = "EPSG:32632"

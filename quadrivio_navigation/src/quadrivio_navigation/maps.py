@@ -35,7 +35,7 @@ Georeferenced maps (surveys): ``image`` may be a GeoTIFF, placed by its own CRS 
 geotransform (no ``origin``; ``resolution`` optional: the grid's, default the raster's), or
 a plain image with ``crs: EPSG:32632`` and ``origin`` its lower-left corner in that CRS.
 Either is resampled into the map frame about the site's datum (``config/site.yaml``):
-:func:`georeferenced`, :mod:`quadrivio_description.georaster`.
+:func:`georeferenced`, :mod:`quadrivio_terrain.georaster`.
 
 The grid's row 0 is the image's bottom row (``y`` grows with the row), as in
 ``nav_msgs/OccupancyGrid``. ROS-free.
@@ -377,7 +377,7 @@ def georeferenced(meta: MapMetadata, frame=None) -> OccupancyGrid:
       the grid's (default: the raster's pixel size), no ``origin``;
     * a plain image with ``crs: EPSG:...``: ``origin`` is its lower-left corner in that CRS
       and ``resolution`` its pixel size in the CRS's units (metres)."""
-    from quadrivio_description.georaster import Raster, read_geotiff, resample_to_local, _crs
+    from quadrivio_terrain.georaster import Raster, read_geotiff, resample_to_local, _crs
 
     if frame is None:
         from quadrivio_description.site import load_site

@@ -213,7 +213,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             print(f"[plan] WARNING: {warning}", file=sys.stderr, flush=True)
         heights, rollover = None, None
         if args.dem:
-            from quadrivio_description.georaster import dem_heightfield
+            from quadrivio_terrain.georaster import dem_heightfield
             from .rollover import RolloverParams
 
             w, h = grid.size

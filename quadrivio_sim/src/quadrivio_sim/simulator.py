@@ -35,7 +35,7 @@ from .noise import Latency
 from .plc_emulator import PlcLogic, PlcParams
 from .script import SetpointScript
 from .sensors import (CameraSensor, GpsSensor, ImuSensor, LaserSensor, MagSensor, SensorsParams)
-from quadrivio_description.terrain import TerrainParams
+from quadrivio_terrain.terrain import TerrainParams
 from quadrivio_navigation.maps import MapParams, load_map, obstacles_from_grid
 from .world import Obstacle, PhysicsParams, Pose2D, World, quat_to_rows, rotate_inverse
 from quadrivio_description.vehicle import GRAVITY

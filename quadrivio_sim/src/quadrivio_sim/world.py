@@ -33,7 +33,7 @@ from quadrivio_description.frames import matrix_from_quaternion, quaternion_from
 from quadrivio_description.kinematics import ackermann_wheel_angles
 from quadrivio_description.vehicle import GRAVITY, VehicleParams
 
-from quadrivio_description.terrain import Heightfield, TerrainParams, build_heightfield
+from quadrivio_terrain.terrain import Heightfield, TerrainParams, build_heightfield
 
 Vec3 = Tuple[float, float, float]
 Quat = Tuple[float, float, float, float]  # x, y, z, w (PyBullet order)

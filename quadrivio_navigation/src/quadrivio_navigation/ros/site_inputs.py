@@ -77,7 +77,7 @@ def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.nd
     key = "/scenario/sim/terrain"
     if not (enabled and rospy.has_param(key)):
         return None
-    from quadrivio_description.terrain import TerrainParams, build_heightfield
+    from quadrivio_terrain.terrain import TerrainParams, build_heightfield
 
     try:
         tp = replace_nested(TerrainParams(), rospy.get_param(key), key)

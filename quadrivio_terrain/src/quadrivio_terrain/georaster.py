@@ -38,8 +38,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from .config import ConfigError
-from .geodesy import A, B, E2, EP2, LocalFrame
+from quadrivio_description.config import ConfigError
+from quadrivio_description.geodesy import A, B, E2, EP2, LocalFrame
 
 
 def _proj_data() -> None:
@@ -211,7 +211,7 @@ def sample(raster: Raster, frame: LocalFrame, e: np.ndarray, n: np.ndarray, meth
 
 def dem_heightfield(path: str, frame: LocalFrame, size: float, resolution: float, vertical: str = "origin",
                     z_scale: float = 1.0):
-    """The DEM GeoTIFF at ``path`` as a :class:`~quadrivio_description.terrain.Heightfield`
+    """The DEM GeoTIFF at ``path`` as a :class:`~quadrivio_terrain.terrain.Heightfield`
     of ``size`` x ``size`` m at ``resolution`` about the map origin. ``vertical``: heights
     relative to the DEM at the origin (``origin``) or to the datum's altitude (``datum``);
     ``z_scale``: the DEM's vertical unit in metres (0.3048 for feet)."""

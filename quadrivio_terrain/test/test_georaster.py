@@ -1,4 +1,4 @@
-"""Surveyed rasters in the site's frame (quadrivio_description.georaster): a synthetic DEM
+"""Surveyed rasters in the site's frame (quadrivio_terrain.georaster): a synthetic DEM
 written with rasterio in a projected CRS reads back to the same heights at the same local
 coordinates; the terrain built from it is the simulator's and the planner's; bad rasters
 get one clear error."""
@@ -11,9 +11,9 @@ import rasterio  # noqa: E402  Debian's python3-rasterio (make setup installs it
 
 from quadrivio_description.config import ConfigError  # noqa: E402
 from quadrivio_description.geodesy import LocalFrame  # noqa: E402
-from quadrivio_description.georaster import (crs_to_local, dem_heightfield, enu_to_lonlat, local_to_crs,  # noqa: E402
+from quadrivio_terrain.georaster import (crs_to_local, dem_heightfield, enu_to_lonlat, local_to_crs,  # noqa: E402
                                              lonlat_to_enu, read_geotiff, resample_to_local)
-from quadrivio_description.terrain import TerrainParams, build_heightfield  # noqa: E402
+from quadrivio_terrain.terrain import TerrainParams, build_heightfield  # noqa: E402
 
 FRAME = LocalFrame(45.478070, 9.227690, 165.0)  # the default site (Milan)
 UTM33 = "EPSG:32633"  # 5.8 deg east of Milan: grid north 4.1 deg from true north there

@@ -4,7 +4,7 @@ Shared by the simulator (a PyBullet heightfield) and the planner (slope cost and
 too steep to drive), so both see the same ground. A terrain is a regular grid of heights
 ``z[i, j]`` at ``x = x0 + j * res`` and ``y = y0 + i * res`` (row ``i`` northwards,
 column ``j`` eastwards), centred on the world origin (a GeoTIFF DEM is resampled onto
-such a grid in the site's local frame: :mod:`quadrivio_description.georaster`); :meth:`Heightfield.height` gives
+such a grid in the site's local frame: :mod:`quadrivio_terrain.georaster`); :meth:`Heightfield.height` gives
 the bilinear height anywhere (spawning, tests), :meth:`Heightfield.heights` for arrays.
 The procedural surface is drawn from the generator it is given: the simulator passes
 ``numpy.random.default_rng(seed)`` before any other draw, so
@@ -168,7 +168,7 @@ def build_heightfield(p: TerrainParams, rng: np.random.Generator, frame=None) ->
         from .georaster import dem_heightfield
 
         if frame is None:
-            from .site import load_site
+            from quadrivio_description.site import load_site
 
             frame = load_site().local_frame()
         return dem_heightfield(p.image, frame, p.size, p.resolution, p.vertical, p.z_scale)
