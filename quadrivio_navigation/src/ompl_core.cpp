@@ -789,9 +789,12 @@ const char *qv_ompl_planners()
     return kPlanners;
 }
 
+// Built from the numeric macros: Debian's ompl/config.h defines OMPL_VERSION as "".
+#define QV_STR2(x) #x
+#define QV_STR(x) QV_STR2(x)
 const char *qv_ompl_version()
 {
-    return OMPL_VERSION;
+    return QV_STR(OMPL_MAJOR_VERSION) "." QV_STR(OMPL_MINOR_VERSION) "." QV_STR(OMPL_PATCH_VERSION);
 }
 
 // A cost grid (row-major, row 0 at y = 0) and a footprint (m from base_link, padding
