@@ -1,4 +1,5 @@
 """Layer-2 imperfections: each model's statistics match its configured values."""
+import dataclasses
 import math
 
 import numpy as np
@@ -194,3 +195,32 @@ def test_gps_episodes_depend_on_sim_time_only():
     late = timeline(np.arange(3.0, 300.0, 0.2)[np.random.default_rng(1).random(1485) > 0.1])
     assert any(v[0] for v in every.values()) and any(v[1] for v in every.values())
     assert all(every[t] == v for t, v in late.items())
+
+
+def test_the_adapters_and_the_offline_runner_build_their_models_alike():
+    """sensor_models is the one factory: the same seed and adapter name give the same draws,
+    noise first, then latency; another name, another stream."""
+    from quadrivio_description.config import load_dataclass
+    from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams
+    from quadrivio_sim.noise import sensor_models
+    from quadrivio_sim.paths import package_file
+
+    gp = load_dataclass(GpsAdapterParams, package_file("config", "gps.yaml"))
+    ip = load_dataclass(ImuAdapterParams, package_file("config", "imu.yaml"))
+    ip = dataclasses.replace(ip, latency=dataclasses.replace(ip.latency, jitter=0.003))
+
+    def draws(p, kind, name):
+        noise, latency = sensor_models(kind, p, 5, name)
+        if kind == "imu":
+            out = [noise.apply((0.0, 0.0, 9.81), (0.0, 0.0, 0.0)) for k in range(5)]
+        else:
+            out = [noise.apply(0.2 * k, (1.0, 2.0, 0.0), (0.0, 0.0, 0.0)) for k in range(5)]
+        return np.asarray(out, dtype=object), [latency.deliver_at(0.01 * k) for k in range(5)]
+
+    for p, kind, name in ((gp, "gps", "/gps_adapter"), (ip, "imu", "/imu_adapter")):
+        a, b = draws(p, kind, name), draws(p, kind, name)
+        assert repr(a[0]) == repr(b[0]) and a[1] == b[1]
+    c = draws(ip, "imu", "/other_imu_adapter")
+    assert repr(c[0]) != repr(draws(ip, "imu", "/imu_adapter")[0])
+    with pytest.raises(ValueError, match="no sensor model for kind 'sonar'"):
+        sensor_models("sonar", gp, 5, "/x")

@@ -153,7 +153,7 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     from quadrivio_plc import protocol
     from quadrivio_sim.actuators import load_actuators
     from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams, MagAdapterParams
-    from quadrivio_sim.noise import GpsNoise, ImuNoise, Latency, MagNoise, adapter_rng
+    from quadrivio_sim.noise import sensor_models
     from quadrivio_sim.paths import package_file
     from quadrivio_sim.simulator import Simulator
     from quadrivio_sim.world import quat_to_rpy
@@ -169,10 +169,10 @@ def run(s: Scenario, seed: int, localizer_factory: Optional[Callable] = None, ma
     gp = sensor_params(s, "gps", GpsAdapterParams, "gps.yaml")
     ip = sensor_params(s, "imu", ImuAdapterParams, "imu.yaml")
     mp = sensor_params(s, "mag", MagAdapterParams, "mag.yaml")
-    rng_g, rng_i, rng_m = adapter_rng(seed, GPS_NODE), adapter_rng(seed, IMU_NODE), adapter_rng(seed, MAG_NODE)
-    gps, gps_lat = GpsNoise(gp.noise, rng_g), Latency(gp.latency, rng_g)
-    imu, imu_lat = ImuNoise(ip.noise, rng_i, 1.0 / ip.rate), Latency(ip.latency, rng_i)
-    mag, mag_lat = MagNoise(mp.noise, rng_m), Latency(mp.latency, rng_m)
+    # the adapters' own models, from the same factory and generators as theirs
+    gps, gps_lat = sensor_models("gps", gp, seed, GPS_NODE)
+    imu, imu_lat = sensor_models("imu", ip, seed, IMU_NODE)
+    mag, mag_lat = sensor_models("mag", mp, seed, MAG_NODE)
     lp = localizer_params(s, mag_calibration)
     loc = (localizer_factory or Localizer)(lp, v, site)
     spawn = sp.spawn

@@ -355,3 +355,28 @@ class Latency:
         d = self.p.delay + (self.p.jitter * self.rng.normal() if self.p.jitter > 0.0 else 0.0)
         self.last = max(self.last, t + max(0.0, d))
         return self.last
+
+
+# ------------------------------------------------------------------- factory
+SENSOR_KINDS = ("gps", "imu", "mag", "laser")
+
+
+def sensor_models(kind: str, p, seed: int, name: str):
+    """``(noise, latency)`` of a sensor adapter: the one place that builds them, for the
+    adapters (``quadrivio_sim.ros.adapters``) and the offline runner (``quadrivio.offline``)
+    alike. Both draw from the adapter's own generator (:func:`adapter_rng` of ``seed`` and the
+    adapter's resolved ``name``), the noise model first, then the latency: the same seed gives
+    the same readings in both. ``p``: the adapter's parameters (``noise``, ``latency``, and
+    ``rate`` for the IMU)."""
+    rng = adapter_rng(seed, name)
+    if kind == "gps":
+        noise = GpsNoise(p.noise, rng)
+    elif kind == "imu":
+        noise = ImuNoise(p.noise, rng, 1.0 / p.rate)
+    elif kind == "mag":
+        noise = MagNoise(p.noise, rng)
+    elif kind == "laser":
+        noise = LaserNoise(p.noise, rng)
+    else:
+        raise ValueError(f"no sensor model for kind {kind!r} (one of {', '.join(SENSOR_KINDS)})")
+    return noise, Latency(p.latency, rng)

@@ -69,7 +69,7 @@ from quadrivio_sim.msg import RawGps
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
                               MagAdapterParams)
 from ..nmea_out import NmeaEncoder, open_output
-from ..noise import NO_FIX, adapter_rng, GpsNoise, ImuNoise, LaserNoise, Latency, MagNoise
+from ..noise import NO_FIX, Latency, adapter_rng, sensor_models
 
 
 class Slot:
@@ -98,6 +98,10 @@ class Slot:
 
     def rng(self) -> np.random.Generator:
         return adapter_rng(run_seed(), self.name)
+
+    def models(self, kind: str, p):
+        """The adapter's (noise, latency), from :func:`quadrivio_sim.noise.sensor_models`."""
+        return sensor_models(kind, p, run_seed(), self.name)
 
 
 class DelayedOutput:
@@ -216,9 +220,8 @@ class GpsAdapter:
         rospy.Subscriber(self.input, RawGps, self._on_raw, queue_size=100)
 
     def _build(self) -> Latency:
-        rng = self.slot.rng()
-        self.noise = GpsNoise(self.p.noise, rng)
-        return Latency(self.p.latency, rng)
+        self.noise, latency = self.slot.models("gps", self.p)
+        return latency
 
     def _on_raw(self, m: RawGps) -> None:
         t = m.header.stamp.to_sec()
@@ -266,9 +269,8 @@ class ImuAdapter:
         rospy.Subscriber(self.input, Imu, self._on_raw, queue_size=200)
 
     def _build(self) -> Latency:
-        rng = self.slot.rng()
-        self.noise = ImuNoise(self.p.noise, rng, 1.0 / self.p.rate)
-        return Latency(self.p.latency, rng)
+        self.noise, latency = self.slot.models("imu", self.p)
+        return latency
 
     def _on_raw(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
@@ -300,9 +302,8 @@ class MagAdapter:
         rospy.Subscriber(self.input, MagneticField, self._on_raw, queue_size=100)
 
     def _build(self) -> Latency:
-        rng = self.slot.rng()
-        self.noise = MagNoise(self.p.noise, rng)
-        return Latency(self.p.latency, rng)
+        self.noise, latency = self.slot.models("mag", self.p)
+        return latency
 
     def _on_raw(self, m: MagneticField) -> None:
         h = m.magnetic_field
@@ -331,9 +332,8 @@ class LaserAdapter:
         rospy.Subscriber(self.input, LaserScan, self._on_raw, queue_size=20)
 
     def _build(self) -> Latency:
-        rng = self.slot.rng()
-        self.noise = LaserNoise(self.p.noise, rng)
-        return Latency(self.p.latency, rng)
+        self.noise, latency = self.slot.models("laser", self.p)
+        return latency
 
     def _on_raw(self, m: LaserScan) -> None:
         if not self.out.accept(self.input, m.header.stamp.to_sec(), m.angle_min, m.angle_max, m.angle_increment):
