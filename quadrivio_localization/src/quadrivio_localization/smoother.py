@@ -57,7 +57,7 @@ __all__ = ["Localizer", "Estimate", "Counters", "CALIBRATION_NAMES", "Calibratio
            "MagCalibration", "NoiseParams", "Prior"]
 from .buffers import SampleBuffer
 from .leveling import Leveller, lowpass
-from .wheel_lock import WheelLock
+from .wheel_lock import DeadWheel, WheelLock
 from .wheel_slip import SlipParams, WheelSlip
 from .window import FixedLagWindow
 
@@ -161,8 +161,7 @@ class Localizer:
             if p.wheel_slip_threshold > 0.0 else None
         self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
-        self.wheel_suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
-        self.wheel_fault_since: Optional[float] = None
+        self.dead_wheel = DeadWheel(p.wheel_check_rate, p.wheel_check_time, self.REST_SPEED, self.dt)
         self.events: List[str] = []  # for the node's log
         self.z: Optional[float] = None
         self.z_t: Optional[float] = None
@@ -447,34 +446,16 @@ class Localizer:
         self.counters.keyframes += 1
 
     def _wheel_dead(self, t: float, samples, dth_gyro: Optional[float], bias: float) -> bool:
-        """Whether the wheel-speed channel reads 0 while the vehicle moves: the wheel says
-        standstill while the bias-corrected gyro says the vehicle turns faster than
-        ``wheel_check_rate`` for ``wheel_check_time`` s (an Ackermann vehicle cannot turn in
-        place). The fault holds while the wheel reads standstill; it is named in
-        :meth:`faults`."""
-        p = self.p
-        if max(abs(v) for _, v, _ in samples) >= self.REST_SPEED or p.wheel_check_time <= 0.0:
-            self.wheel_suspect = 0.0
-            if self.wheel_fault_since is not None:
-                self.events.append(f"wheel speed back at {t:.2f} s after "
-                                   f"{t - self.wheel_fault_since:.1f} s reading 0 while moving")
-            self.wheel_fault_since = None
-            return False
-        if self.wheel_fault_since is not None:
-            return True
-        if dth_gyro is not None and abs(dth_gyro / self.dt - bias) > p.wheel_check_rate:
-            self.wheel_suspect += self.dt
-        else:
-            self.wheel_suspect = 0.0
-        if self.wheel_suspect >= p.wheel_check_time - 1e-9:
-            self.wheel_fault_since = t
+        """Whether the wheel-speed channel reads 0 while the vehicle moves (:class:`.DeadWheel`);
+        named in :meth:`faults`."""
+        rate = None if dth_gyro is None else dth_gyro / self.dt - bias
+        dead, began, events = self.dead_wheel.update(t, max(abs(v) for _, v, _ in samples), rate)
+        self.events.extend(events)
+        if began:
             # The last wheel_check_time s of odometry said "standing" and the estimate believed
             # it, covariance included: the gate must not judge the fixes by it.
             self.gate.unsettle()
-            self.events.append(f"wheel speed reads 0 at {t:.2f} s while the gyro says the vehicle turns: "
-                               "odometry ignored until it reads motion again")
-            return True
-        return False
+        return dead
 
     def _wheel_locked(self, t0: float, t1: float) -> bool:
         """Whether the wheel is locked over ``[t0, t1]`` (:mod:`.wheel_lock`); meanwhile the
@@ -504,8 +485,8 @@ class Localizer:
         out = []
         if self.slip is not None and self.slip.since is not None:
             out.append(f"wheels slip (since {self.slip.since:.1f} s): {self.slip.reason}; odometry ignored")
-        if self.wheel_fault_since is not None:
-            out.append(f"wheel speed reads 0 while the vehicle moves (since {self.wheel_fault_since:.1f} s): "
+        if self.dead_wheel.since is not None:
+            out.append(f"wheel speed reads 0 while the vehicle moves (since {self.dead_wheel.since:.1f} s): "
                        "odometry ignored")
         return out
 

@@ -1,4 +1,7 @@
-"""A locked wheel: a wheel speed that drops faster than any vehicle brakes on its tyres.
+"""The wheel's two lies the smoother checks for: a locked wheel (:class:`WheelLock`) and a
+dead wheel-speed channel (:class:`DeadWheel`).
+
+A locked wheel: a wheel speed that drops faster than any vehicle brakes on its tyres.
 
 Under a full brake a wheel can lock: it reads 0 at once while the vehicle slides on.
 Believed, that standstill falls short of where the vehicle went (0.3 m on a full brake
@@ -69,3 +72,38 @@ class WheelLock:
         if self.since is not None and t0 >= self.until:
             self.since = None  # the vehicle has long stopped: the wheel's standstill is its own
         return self.since is not None and self.confirmed, events
+
+
+class DeadWheel:
+    """A wheel-speed channel that reads 0 while the vehicle moves: the wheel says standstill
+    while the bias-corrected gyro says the vehicle turns faster than ``check_rate`` for
+    ``check_time`` s (an Ackermann vehicle cannot turn in place). The fault holds while the
+    wheel reads standstill (below ``rest_speed``); ``since`` is its start, None without one.
+    One :meth:`update` per keyframe interval of ``dt`` s."""
+
+    def __init__(self, check_rate: float, check_time: float, rest_speed: float, dt: float) -> None:
+        self.check_rate, self.check_time, self.rest_speed, self.dt = check_rate, check_time, rest_speed, dt
+        self.suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
+        self.since: Optional[float] = None
+
+    def update(self, t: float, max_speed: float, yaw_rate: Optional[float]) -> Tuple[bool, bool, List[str]]:
+        """``max_speed``: the largest wheel speed magnitude in the interval ending at ``t``;
+        ``yaw_rate``: the gyro's bias-corrected yaw rate over it (None: unknown). Returns
+        (dead, just began, events to log)."""
+        if max_speed >= self.rest_speed or self.check_time <= 0.0:
+            self.suspect = 0.0
+            events = [] if self.since is None else [f"wheel speed back at {t:.2f} s after {t - self.since:.1f} s "
+                                                    "reading 0 while moving"]
+            self.since = None
+            return False, False, events
+        if self.since is not None:
+            return True, False, []
+        if yaw_rate is not None and abs(yaw_rate) > self.check_rate:
+            self.suspect += self.dt
+        else:
+            self.suspect = 0.0
+        if self.suspect >= self.check_time - 1e-9:
+            self.since = t
+            return True, True, [f"wheel speed reads 0 at {t:.2f} s while the gyro says the vehicle turns: "
+                                "odometry ignored until it reads motion again"]
+        return False, False, []
