@@ -20,7 +20,7 @@
 #include <ros/ros.h>
 #include <nav_msgs/Odometry.h>
 #include <quadrivio_localization/Calibration.h>
-#include <quadrivio_localization/lockstep.h>
+#include <quadrivio_runtime/lockstep.h>
 #include <quadrivio_localization/predictor.h>
 #include <quadrivio_plc/VehicleState.h>
 #include <rosgraph_msgs/Clock.h>
@@ -277,7 +277,7 @@ private:
   ros::Publisher pub_;
   ros::Subscriber sub_odom_, sub_state_, sub_cal_, sub_clock_;
   int64_t period_ns_ = 20000000, next_tick_ns_ = 0;  // the beat on /clock (sim time)
-  ql::Lockstep lockstep_;
+  quadrivio_runtime::Lockstep lockstep_;
   int realtime_priority_ = 0;
   std::atomic<bool> stop_{ false };
   std::thread beat_;

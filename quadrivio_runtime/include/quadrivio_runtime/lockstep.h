@@ -1,4 +1,4 @@
-// Lockstep for roscpp nodes: the C++ side of quadrivio_runtime/lockstep.py (read
+// Lockstep for roscpp nodes: the C++ side of quadrivio_runtime.ros.lockstep (read
 // its docstring for the protocol). When /lockstep/enabled and ~lockstep are true, what the
 // node's subscriptions receive is queued and counted per topic and publisher, its timers do
 // not run on their own, and the simulator's rounds on /lockstep/command decide what is
@@ -30,7 +30,7 @@
 #include <utility>
 #include <vector>
 
-namespace quadrivio_localization
+namespace quadrivio_runtime
 {
 class Lockstep
 {
@@ -341,4 +341,4 @@ private:
   std::vector<ros::Timer> timers_keep_;
   int64_t last_t_ = 0;
 };
-}  // namespace quadrivio_localization
+}  // namespace quadrivio_runtime
