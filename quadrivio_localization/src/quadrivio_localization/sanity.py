@@ -10,6 +10,7 @@ to. ROS-free.
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import List, Optional, Sequence, Tuple
 
@@ -118,8 +119,6 @@ def check_speed(wheel: Sequence[Tuple[float, float]], fixes: Sequence[Tuple[floa
     mph, the wheel's rad/s) or a reversed sign. Too little motion to compare: ("", "")."""
     wheel = sorted(wheel)
     times = [t for t, _ in wheel]
-    import bisect
-
     ratios = []
     for t0, t1, v in gps_speeds(fixes):
         if v < SPEED_MIN:
