@@ -19,7 +19,7 @@ setpoint, every protective stop), ``obstacle_replan_completed`` (orchard_blocked
 parked at the goal), ``laser_dropout_stop_s_max`` (the silent laser's last scan to the
 vehicle's standstill), ``zone_exits`` (runs whose true footprint left the zone);
 ``guard_cpu_frac`` (the guard's CPU seconds per simulated second in a factor-1 run of
-person_on_path) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
+person_on_path; ``guard_cpu_frac_python``: the Python reference guard's in the same run again) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
 in this process, one update per scan).
 
 ``--seeds N`` (default 10), ``--speeds 2,3``, ``--rtf`` (default 2), ``--only a,b``.
@@ -65,11 +65,11 @@ def variant(name: str, speed: float, folder: str) -> str:
     return path
 
 
-def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "") -> dict:
+def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "", extra=()) -> dict:
     if os.path.isdir(out):
         shutil.rmtree(out)
     cmd = ["rosrun", "quadrivio", "experiment", path, "--seed", str(seed), "--rtf", str(rtf), "--out", out,
-           "--wall-timeout", "900"]
+           "--wall-timeout", "900"] + list(extra)
     cpu = {}
     stop = threading.Event()
     if cpu_node:
@@ -233,6 +233,13 @@ def main() -> None:
         m = run(variant("person_on_path", 2.0, args.out), 1, out, 1.0, cpu_node="guard")
         if not m.get("failed") and m.get("cpu", {}).get("cpu_s") is not None:
             result["guard_cpu_frac"] = m["cpu"]["cpu_s"] / m["sim_duration_s"]
+        # the Python reference guard, the same run right after (the same decisions: test_guard_native.py)
+        ref = run(variant("person_on_path", 2.0, args.out), 1, out + "_python_guard", 1.0, cpu_node="guard",
+                  extra=["--guard", "guard"])
+        if not ref.get("failed") and ref.get("cpu", {}).get("cpu_s") is not None:
+            result["guard_cpu_frac_python"] = ref["cpu"]["cpu_s"] / ref["sim_duration_s"]
+            print(f"[bench obstacles] guard CPU per simulated s: roscpp {result.get('guard_cpu_frac')}, "
+                  f"Python {result['guard_cpu_frac_python']}", flush=True)
         times = layer_update_ms(os.path.join(out, "run.bag")) if not m.get("failed") else []
         if times:
             result["local_layer_update_p99_ms"] = float(np.percentile(times, 99))

@@ -151,7 +151,7 @@ class Runner:
         from ..offline import sensor_params
         fix_delay = f"gps_fix_delay:={sensor_params(self.scenario, 'gps', GpsAdapterParams, 'gps.yaml').latency.delay:g}"
         common = [f"scenario_file:={self.scenario.path}", f"plc_port:={plc_port}", f"initial_mode:={run.initial_mode}",
-                  f"excitation:={excitation}"]
+                  f"excitation:={excitation}", f"guard:={getattr(self.args, 'guard', 'guard_cpp')}"]
         sim = ["roslaunch", "-p", str(self.port), "quadrivio", "sim.launch", f"rtf:={self.rtf}", f"seed:={self.seed}",
                "start_paused:=true", f"run_until:={run.max_duration:g}",
                f"stale_fraction:={self.args.stale_fraction:g}"] + common
@@ -464,6 +464,8 @@ def main(argv: Optional[List[str]] = None) -> int:
                    help="above factor 1, while the loop's output is stale, run first at F times the factor instead "
                         "of real time (0 <= F < 1; 0: real time at once): asked for more than the machine sustains, "
                         "the run gets closer to it, but the loop may act on data staler than 5 periods")
+    p.add_argument("--guard", choices=("guard_cpp", "guard"), default="guard_cpp",
+                   help="the obstacle guard: guard_cpp (roscpp, default) or guard (the Python reference)")
     p.add_argument("--lockstep", action="store_true",
                    help="the simulator steps only when the closed loop has consumed the last tick: the same seed "
                         "gives the same run, message for message (with --rtf 0 as fast as the loop goes)")

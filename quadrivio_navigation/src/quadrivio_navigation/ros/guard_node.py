@@ -58,7 +58,7 @@ from ..fields import ScanError, check_scan, scan_points
 from ..local_layer import dem_ground
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardParams, check_zone
 from ..msg import GuardStatus
-from .site_inputs import StaticFrames, scenario_terrain
+from .site_inputs import StaticFrames, scenario_heightfield
 
 MAX_RANGE = 20.0  # [m] returns beyond this cannot matter for the fields (warning field at 8 m/s: ~16 m)
 
@@ -92,23 +92,32 @@ def load_zone_file(path: str):
     return zone
 
 
+def guard_config(private: dict, source: str):
+    """The guard's configuration from its private parameters (``source``: the node's name,
+    for messages), the scenario's ``guard:`` section, the zone file, the vehicle and the
+    scenario's terrain: ``(GuardParams, NodeParams, VehicleParams, Heightfield or None)``.
+    Stops the process with a FATAL message on a bad value. The Python node and the roscpp
+    node (through :mod:`quadrivio_navigation.ros.guard_config`) read it here alike."""
+    mine, rest = split_params(private, NodeParams)
+    node = node_params(NodeParams, mine, source)
+    try:
+        p: GuardParams = with_scenario(node_params(GuardParams, rest, source), "guard")
+        if node.zone_file and not p.zone:
+            p = replace_nested(p, {"zone": [list(v) for v in load_zone_file(node.zone_file)]}, "~zone_file")
+    except ConfigError as exc:
+        fatal(f"bad guard parameter: {exc}")
+    hf = scenario_heightfield("obstacle guard (returns on the terrain are the ground)", node.terrain_from_scenario)
+    return p, node, vehicle_params(), hf
+
+
 class GuardNode:
     def __init__(self) -> None:
-        mine, rest = split_params(private_params(), NodeParams)
-        self.node_params: NodeParams = node_params(NodeParams, mine)
-        try:
-            p: GuardParams = with_scenario(node_params(GuardParams, rest), "guard")
-            if self.node_params.zone_file and not p.zone:
-                p = replace_nested(p, {"zone": [list(v) for v in load_zone_file(self.node_params.zone_file)]}, "~zone_file")
-        except ConfigError as exc:
-            fatal(f"bad guard parameter: {exc}")
+        p, self.node_params, self.vehicle, hf = guard_config(private_params(), rospy.get_name())
         self.p = p
-        self.vehicle = vehicle_params()
         self.core = Guard(p, self.vehicle)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
         self.attitude = Attitude(p.slope_tau)
-        self.heights = scenario_terrain("obstacle guard (returns on the terrain are the ground)",
-                                        self.node_params.terrain_from_scenario)
+        self.heights = None if hf is None else hf.heights
         self.pose = None  # (stamp, x, y, yaw) from localization/predicted
         self.ground_returns = 0
         self.lock = threading.Lock()

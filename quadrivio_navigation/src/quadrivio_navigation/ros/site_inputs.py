@@ -74,6 +74,12 @@ def site_frame():
 
 def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.ndarray, np.ndarray], np.ndarray]]:
     """The scenario's terrain heights ``z(x, y)`` [m] (map frame), or None without one."""
+    hf = scenario_heightfield(who, enabled)
+    return None if hf is None else hf.heights
+
+
+def scenario_heightfield(who: str, enabled: bool = True):
+    """The scenario's :class:`quadrivio_terrain.terrain.Heightfield` (map frame), or None without one."""
     key = "/scenario/sim/terrain"
     if not (enabled and rospy.has_param(key)):
         return None
@@ -93,4 +99,4 @@ def scenario_terrain(who: str, enabled: bool = True) -> Optional[Callable[[np.nd
     if hf is None:
         return None
     rospy.loginfo("%s: the scenario's %s terrain is known (a DEM)", who, tp.kind)
-    return hf.heights
+    return hf

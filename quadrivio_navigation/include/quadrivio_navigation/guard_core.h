@@ -1,0 +1,988 @@
+// The obstacle guard's core in C++: the same computation as the Python reference
+// (quadrivio_navigation/guard.py, fields.py, attitude.py, local_layer.dem_ground), for the
+// roscpp guard node, whose inputs (315 messages a second) rospy alone cannot receive within
+// the guard's CPU budget. ROS-free and header-only; cross-tested against the Python core on
+// random cases (test/test_guard_native.py through the guard_replay driver): read the Python
+// modules' docstrings for the fields, the stop/hold/release cycle and the zone.
+#pragma once
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace quadrivio_navigation
+{
+namespace guard
+{
+constexpr double kInf = std::numeric_limits<double>::infinity();
+constexpr double kGravity = 9.81;  // quadrivio_description.vehicle.GRAVITY (the cross-test holds them equal)
+
+enum Action
+{
+  CLEAR = 0,
+  SLOW = 1,
+  STOP = 2,
+  HOLD = 3,
+  FAULT = 4
+};
+
+inline const char* actionName(int a)
+{
+  static const char* names[] = { "CLEAR", "SLOW", "STOP", "HOLD", "FAULT" };
+  return a >= 0 && a <= 4 ? names[a] : "?";
+}
+
+// printf into a std::string (the reasons carry the same text as the Python guard's)
+template <typename... Args>
+std::string format(const char* fmt, Args... args)
+{
+  char buf[512];
+  std::snprintf(buf, sizeof(buf), fmt, args...);
+  return buf;
+}
+
+// A float as Python's repr prints it (0.2, 1.0, 0.35): the parameters in the reasons read as
+// the Python guard's do
+inline std::string pyfloat(double x)
+{
+  if (std::isnan(x))
+    return "nan";
+  if (std::isinf(x))
+    return x > 0 ? "inf" : "-inf";
+  char buf[40];
+  for (int prec = 1; prec <= 17; ++prec)
+  {
+    std::snprintf(buf, sizeof(buf), "%.*g", prec, x);
+    if (std::strtod(buf, nullptr) == x)
+      break;
+  }
+  std::string out(buf);
+  if (out.find_first_of(".en") == std::string::npos)
+    out += ".0";
+  return out;
+}
+
+struct Point
+{
+  double x = 0.0, y = 0.0;
+};
+
+// The vehicle's rectangle about base_link [m] (quadrivio_navigation.costmap.Footprint)
+struct Footprint
+{
+  double front = 0.0, rear = 0.0, left = 0.0, right = 0.0;
+  double circumscribedRadius() const { return std::hypot(std::max(front, rear), std::max(left, right)); }
+  bool contains(double u, double w) const { return u <= front && u >= -rear && w <= left && w >= -right; }
+  Footprint grown(double g) const { return Footprint{ front + g, rear + g, left + g, right + g }; }
+  std::array<Point, 4> corners(double x, double y, double th) const
+  {
+    const double c = std::cos(th), s = std::sin(th);
+    const double local[4][2] = { { front, -right }, { front, left }, { -rear, left }, { -rear, -right } };
+    std::array<Point, 4> out;
+    for (int i = 0; i < 4; ++i)
+      out[i] = Point{ x + c * local[i][0] - s * local[i][1], y + s * local[i][0] + c * local[i][1] };
+    return out;
+  }
+};
+
+// ---------------------------------------------------------------- fields (fields.py)
+struct ScanPoints
+{
+  std::vector<Point> xy;  // base_link
+  int n_rays = 0, n_invalid = 0, n_too_close = 0;
+};
+
+// "" or what is wrong with a scan's geometry (fields.check_scan)
+inline std::string checkScan(size_t n, double angle_min, double angle_max, double inc, double rmin, double rmax)
+{
+  if (!(std::isfinite(angle_min) && std::isfinite(angle_max) && std::isfinite(inc) && std::isfinite(rmin) &&
+        std::isfinite(rmax)))
+    return format("non-finite geometry (angle_min %g, angle_max %g, angle_increment %g, range_min %g, range_max %g)",
+                  angle_min, angle_max, inc, rmin, rmax);
+  if (inc == 0.0)
+    return "angle_increment is 0";
+  if (!(0.0 <= rmin && rmin < rmax))
+    return format("range_min %g m and range_max %g m are not 0 <= min < max", rmin, rmax);
+  if (n < 1)
+    return "no ranges";
+  const long expected = std::lround((angle_max - angle_min) / inc) + 1;
+  if (std::labs(expected - static_cast<long>(n)) > 1)
+    return format("%zu ranges, but angle_min %.4f, angle_max %.4f and angle_increment %.6f rad make %ld", n, angle_min,
+                  angle_max, inc, expected);
+  return "";
+}
+
+// The scan's returns in base_link (REP 117: NaN invalid, +inf nothing, -inf at range_min);
+// ``rot`` (row-major 3 x 3 into base_link) or, when null, the mount's yaw; ``ground[i]``
+// true: ray i hit the ground (taken as +inf).
+inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min, double inc, double rmin, double rmax,
+                             double mx, double my, double myaw, double max_range, const double* rot,
+                             const std::vector<char>* ground = nullptr)
+{
+  ScanPoints out;
+  out.n_rays = static_cast<int>(ranges.size());
+  out.xy.reserve(ranges.size());
+  for (size_t i = 0; i < ranges.size(); ++i)
+  {
+    double r = ranges[i];
+    if (ground != nullptr && (*ground)[i])
+      r = kInf;
+    if (std::isnan(r))
+    {
+      ++out.n_invalid;
+      continue;
+    }
+    bool too_close = std::isinf(r) && r < 0.0;
+    if (too_close)
+    {
+      ++out.n_too_close;
+      r = rmin;
+    }
+    else if (std::isinf(r))
+      continue;
+    else if (r < rmin || r > rmax)
+    {
+      ++out.n_invalid;
+      continue;
+    }
+    if (r > max_range)
+      continue;
+    double dx, dy;
+    if (rot == nullptr)
+    {
+      const double a = angle_min + inc * static_cast<double>(i) + myaw;
+      dx = std::cos(a);
+      dy = std::sin(a);
+    }
+    else
+    {
+      const double a = angle_min + inc * static_cast<double>(i);
+      const double c = std::cos(a), s = std::sin(a);
+      dx = rot[0] * c + rot[1] * s;
+      dy = rot[3] * c + rot[4] * s;
+    }
+    out.xy.push_back(Point{ mx + r * dx, my + r * dy });
+  }
+  return out;
+}
+
+struct Pose2
+{
+  double x = 0.0, y = 0.0, th = 0.0;
+};
+
+// Poses every ``ds`` along the next ``length`` metres (fields.sweep); the first is 0
+inline std::vector<Pose2> sweep(int dir, double h0, double h1, double rate, double speed, double length, double ds,
+                                double wheelbase, double ratio)
+{
+  const int k = std::max(1, static_cast<int>(std::ceil(length / ds)));
+  std::vector<Pose2> out(static_cast<size_t>(k) + 1);
+  const double v = std::max(std::fabs(speed), 0.3);
+  double x = 0.0, y = 0.0, th = 0.0;
+  for (int i = 0; i < k; ++i)
+  {
+    const double t = ds * i / v;
+    const double h = h0 + std::min(std::max(h1 - h0, -rate * t), rate * t);
+    const double dth = dir * (std::tan(ratio * h) / wheelbase) * ds;
+    const double mid = th + 0.5 * dth;
+    x += dir * std::cos(mid) * ds;
+    y += dir * std::sin(mid) * ds;
+    th += dth;
+    out[static_cast<size_t>(i) + 1] = Pose2{ x, y, th };
+  }
+  return out;
+}
+
+struct Free
+{
+  double distance = kInf;
+  bool has_point = false;
+  Point point;
+  int index = -1;
+};
+
+// Distance along ``poses`` before the footprint first holds a point (fields.free_distance)
+inline Free freeDistance(const Footprint& fp, const std::vector<Pose2>& poses, const std::vector<Point>& pts, double ds)
+{
+  Free out;
+  if (pts.empty())
+    return out;
+  double far = 0.0;
+  for (const auto& p : poses)
+    far = std::max(far, std::hypot(p.x, p.y));
+  const double reach = fp.circumscribedRadius() + far;
+  std::vector<int> near;
+  for (size_t j = 0; j < pts.size(); ++j)
+    if (pts[j].x * pts[j].x + pts[j].y * pts[j].y <= reach * reach)
+      near.push_back(static_cast<int>(j));
+  if (near.empty())
+    return out;
+  for (size_t k = 0; k < poses.size(); ++k)
+  {
+    const double c = std::cos(poses[k].th), s = std::sin(poses[k].th);
+    for (int j : near)
+    {
+      const double dx = pts[j].x - poses[k].x, dy = pts[j].y - poses[k].y;
+      if (fp.contains(c * dx + s * dy, -s * dx + c * dy))
+      {
+        out.distance = std::max(0.0, (static_cast<double>(k) - 1.0) * ds);
+        out.has_point = true;
+        out.point = pts[j];
+        out.index = j;
+        return out;
+      }
+    }
+  }
+  return out;
+}
+
+inline double effectiveDecel(double decel, double slope, double floor = 0.3)
+{
+  return std::max(decel - kGravity * std::sin(slope), floor);
+}
+
+inline double stoppingDistance(double speed, double reaction, double decel)
+{
+  const double v = std::fabs(speed);
+  return v * reaction + v * v / (2.0 * decel);
+}
+
+inline double allowedSpeed(double distance, double reaction, double decel)
+{
+  if (distance <= 0.0)
+    return 0.0;
+  if (std::isinf(distance))
+    return kInf;
+  return decel * (-reaction + std::sqrt(reaction * reaction + 2.0 * distance / decel));
+}
+
+// Even-odd rule (guard.points_in_polygon)
+inline bool inPolygon(const Point& p, const std::vector<Point>& poly)
+{
+  int crossings = 0;
+  const size_t n = poly.size();
+  for (size_t i = 0; i < n; ++i)
+  {
+    const Point& a = poly[i];
+    const Point& b = poly[(i + 1) % n];
+    if ((a.y > p.y) != (b.y > p.y))
+    {
+      const double xc = a.x + (p.y - a.y) * (b.x - a.x) / (b.y - a.y);
+      if (p.x < xc)
+        ++crossings;
+    }
+  }
+  return crossings % 2 == 1;
+}
+
+// ---------------------------------------------------------------- attitude (attitude.py)
+inline void rpyMatrix(double r, double p, double y, double R[9])
+{
+  const double cr = std::cos(r), sr = std::sin(r), cp = std::cos(p), sp = std::sin(p), cy = std::cos(y),
+               sy = std::sin(y);
+  const double m[9] = { cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr, sy * cp, sy * sp * sr + cy * cr,
+                        sy * sp * cr - cy * sr, -sp,     cp * sr,               cp * cr };
+  std::copy(m, m + 9, R);
+}
+
+class Attitude
+{
+public:
+  explicit Attitude(double tau = 4.0, double max_accel = 8.0, double speed_timeout = 0.25)
+    : tau_(tau), max_accel_(max_accel), speed_timeout_(speed_timeout)
+  {
+  }
+  double roll = 0.0, pitch = 0.0;
+  bool hasImu() const { return has_t_; }
+  double lastImu() const { return t_; }
+
+  void addSpeed(double t, double v)
+  {
+    if (has_speed_ && t > speed_t_)
+    {
+      const double a = (v - speed_v_) / (t - speed_t_);
+      accel_ok_ = std::fabs(a) <= max_accel_;
+      accel_ = accel_ok_ ? a : 0.0;
+    }
+    has_speed_ = true;
+    speed_t_ = t;
+    speed_v_ = v;
+  }
+
+  void addImu(double t, const double f[3], const double w[3])
+  {
+    if (has_t_ && t <= t_)
+      return;
+    const bool fresh = has_speed_ && t - speed_t_ <= speed_timeout_;
+    const double v = fresh ? speed_v_ : 0.0;
+    const double gx = f[0] - (fresh ? accel_ : 0.0), gy = f[1] - v * w[2], gz = f[2];
+    const double roll_g = std::atan2(gy, gz), pitch_g = std::atan2(-gx, std::hypot(gy, gz));
+    if (!started_)
+    {
+      roll = roll_g;
+      pitch = pitch_g;
+      started_ = has_t_ = true;
+      t_ = t;
+      return;
+    }
+    const double dt = t - t_;
+    t_ = t;
+    const double sr = std::sin(roll), cr = std::cos(roll), tp = std::tan(pitch);
+    roll += (w[0] + (w[1] * sr + w[2] * cr) * tp) * dt;
+    pitch += (w[1] * cr - w[2] * sr) * dt;
+    if ((fresh && accel_ok_) || !has_speed_)
+    {
+      const double k = std::min(1.0, dt / tau_);
+      roll += k * (roll_g - roll);
+      pitch += k * (pitch_g - pitch);
+    }
+  }
+
+private:
+  double tau_, max_accel_, speed_timeout_;
+  bool has_t_ = false, started_ = false, has_speed_ = false, accel_ok_ = false;
+  double t_ = 0.0, speed_t_ = 0.0, speed_v_ = 0.0, accel_ = 0.0;
+};
+
+// ---------------------------------------------------------------- terrain (quadrivio_terrain.Heightfield)
+struct Heightfield
+{
+  int rows = 0, cols = 0;
+  double res = 1.0, x0 = 0.0, y0 = 0.0;
+  std::vector<double> z;  // row-major, row index grows with y
+
+  bool empty() const { return z.empty(); }
+  // Bilinear height; outside the grid the edge value
+  double height(double x, double y) const
+  {
+    const double fx = std::min(std::max((x - x0) / res, 0.0), cols - 1.000001);
+    const double fy = std::min(std::max((y - y0) / res, 0.0), rows - 1.000001);
+    const int j = static_cast<int>(fx), i = static_cast<int>(fy);
+    const double tx = fx - j, ty = fy - i;
+    const double* r0 = &z[static_cast<size_t>(i) * cols];
+    const double* r1 = r0 + cols;
+    return (1 - ty) * ((1 - tx) * r0[j] + tx * r0[j + 1]) + ty * ((1 - tx) * r1[j] + tx * r1[j + 1]);
+  }
+};
+
+// Which rays of a scan lie within ``tolerance`` of the terrain (local_layer.dem_ground):
+// the scanner at ``pos`` (map) with rotation ``R`` (row-major, into the map); rays with a
+// range outside [rmin, min(rmax, max_range)] or not finite are not tested (false).
+inline std::vector<char> demGround(const Heightfield& hf, const double pos[3], const double R[9],
+                                   const std::vector<float>& ranges, double angle_min, double inc, double rmin,
+                                   double rmax, double max_range, double tolerance, int* count = nullptr)
+{
+  std::vector<char> out(ranges.size(), 0);
+  const double top = std::min(rmax, max_range);
+  int n = 0;
+  for (size_t i = 0; i < ranges.size(); ++i)
+  {
+    const double r = ranges[i];
+    if (!std::isfinite(r) || r < rmin || r > top)
+      continue;
+    const double a = angle_min + inc * static_cast<double>(i);
+    const double c = std::cos(a), s = std::sin(a);
+    const double x = pos[0] + (R[0] * c + R[1] * s) * r;
+    const double y = pos[1] + (R[3] * c + R[4] * s) * r;
+    const double zz = pos[2] + (R[6] * c + R[7] * s) * r;
+    if (std::fabs(zz - hf.height(x, y)) <= tolerance)
+    {
+      out[i] = 1;
+      ++n;
+    }
+  }
+  if (count != nullptr)
+    *count = n;
+  return out;
+}
+
+// ---------------------------------------------------------------- the guard (guard.py)
+struct Scanner
+{
+  std::string topic, frame, covers = "forward";  // covers: forward | reverse | both
+};
+
+struct Params
+{
+  std::vector<Scanner> scanners;
+  double padding = 0.15, step = 0.05, brake_decel = 3.5, slow_decel = 1.0, brake_latency = 0.15, margin = 0.3,
+         warning_margin = 0.8, creep_speed = 0.3, creep_margin = 0.45, scan_period = 0.1, scan_timeout = 0.35,
+         max_scan_age = 0.25, max_future = 0.05, state_timeout = 0.2, blind_fraction = 0.5, clear_time = 1.0,
+         release_accel = 0.5, stop_speed = 0.1, stop_brake = 1.0, slope_unknown = 0.15, slope_tau = 4.0,
+         imu_timeout = 0.5, zone_sigmas = 2.0, max_position_sd = 1.0, pose_timeout = 0.3;
+  std::vector<Point> zone;
+};
+
+struct Vehicle
+{
+  Footprint body;  // unpadded (self-returns, collisions)
+  double wheelbase = 1.0, ratio = 1.0, max_rate = 1.0;
+};
+
+struct Decision
+{
+  int action = CLEAR;
+  double limit = kInf;
+  std::string reason, field;
+  double free = kInf, protective = 0.0, protective_request = 0.0, warning = 0.0;
+  bool has_nearest = false;
+  Point nearest;
+  std::string scanner;
+  double scan_stamp = std::numeric_limits<double>::quiet_NaN();
+  int direction = 0;
+  double slope = 0.0;
+};
+
+struct Setpoint
+{
+  double speed = 0.0, handlebar = 0.0, brake = 0.0;
+};
+
+class Guard
+{
+public:
+  Guard(const Params& p, const Vehicle& v) : p_(p), v_(v), fp_(v.body.grown(p.padding)), scans_(p.scanners.size())
+  {
+  }
+
+  const Params& params() const { return p_; }
+  int mode() const { return mode_; }
+  bool hasLast() const { return has_last_; }
+  const Decision& last() const { return last_; }
+  bool hasState() const { return has_state_; }
+  double stateSpeed() const { return state_v_; }
+  double stateHandlebar() const { return state_h_; }
+  int protective_stops = 0, fault_stops = 0, zone_stops = 0;
+
+  // ------------------------------------------------------------ inputs
+  void onState(double stamp, double speed, double handlebar)
+  {
+    has_state_ = true;
+    state_t_ = stamp;
+    state_v_ = speed;
+    state_h_ = handlebar;
+  }
+  void onPitch(double stamp, double pitch)
+  {
+    has_slope_ = true;
+    slope_t_ = stamp;
+    slope_p_ = pitch;
+  }
+  void onPose(double stamp, double x, double y, double yaw, double sd)
+  {
+    has_pose_ = true;
+    pose_ = { stamp, x, y, yaw, sd };
+  }
+  // ``points`` null with ``error``: it came but cannot be used
+  void onScan(size_t i, double stamp, const ScanPoints* points, const std::string& error = "")
+  {
+    ScanState& sc = scans_[i];
+    sc.stamp = stamp;
+    sc.error = error;
+    sc.points.clear();
+    if (points == nullptr)
+      return;
+    for (const auto& q : points->xy)
+      if (!v_.body.contains(q.x, q.y))
+        sc.points.push_back(q);
+    sc.invalid_fraction = static_cast<double>(points->n_invalid) / std::max(points->n_rays, 1);
+  }
+
+  bool pitch(double now, double& out) const
+  {
+    if (!has_slope_ || now - slope_t_ > p_.imu_timeout)
+      return false;
+    out = slope_p_;
+    return true;
+  }
+
+  // ------------------------------------------------------------ decide
+  Decision decide(double now, double req_speed, double req_handlebar)
+  {
+    const Params& p = p_;
+    std::string fault = faultReason(now);
+    const double v_m = has_state_ ? state_v_ : 0.0;
+    const double h_m = has_state_ ? state_h_ : req_handlebar;
+    int direction;
+    if (std::fabs(v_m) >= p.stop_speed)
+      direction = v_m > 0 ? 1 : -1;
+    else
+      direction = req_speed == 0.0 ? 0 : (req_speed > 0 ? 1 : -1);
+    if (fault.empty() && direction != 0)
+      fault = scannerFault(now, direction);
+    if (!fault.empty())
+    {
+      Decision d;
+      d.action = FAULT;
+      d.limit = 0.0;
+      d.reason = fault;
+      d.direction = direction;
+      return enter(d);
+    }
+    double pitch_v = 0.0;
+    const double slope = pitch(now, pitch_v) ? direction * pitch_v : p.slope_unknown;
+    const double v = std::fabs(v_m);
+    if (direction == 0)
+    {
+      const bool held = mode_ == STOP || mode_ == HOLD || mode_ == FAULT;
+      if (held)
+      {
+        mode_ = HOLD;
+        clear_since_set_ = false;
+      }
+      Decision d;
+      d.action = held ? HOLD : CLEAR;
+      d.limit = held ? 0.0 : kInf;
+      d.reason = held ? "holding after a stop" : "";
+      d.slope = slope;
+      setLast(d);
+      return d;
+    }
+    std::vector<double> stamps;
+    gatherPoints(now, stamps);
+    double age = 0.0;
+    if (!stamps.empty())
+      age = std::max(0.0, now - *std::min_element(stamps.begin(), stamps.end()));
+    const double a_brake = effectiveDecel(p.brake_decel, slope);
+    const double a_slow = effectiveDecel(p.slow_decel, slope);
+    const double t_prot = p.brake_latency + age;
+    const double t_warn = t_prot + p.scan_period;
+    const double v_req = std::fabs(req_speed);
+    const double d_prot = stoppingDistance(v, t_prot, a_brake) + p.margin;
+    const double d_prot_req = stoppingDistance(v_req, t_prot, a_brake) + p.margin;
+    const double d_warn = stoppingDistance(std::max(v, v_req), t_warn, a_slow) + p.warning_margin;
+    const Free& free = freeCached(direction, h_m, req_handlebar, std::max(v, v_req),
+                                  std::max(d_warn, d_prot) + p.step, stamps);
+    const double d_free = free.distance - v * age;
+    const std::string who = free.index >= 0 ? owners_[static_cast<size_t>(free.index)] : "";
+    double limit = allowedSpeed(d_free - p.warning_margin, t_warn, a_slow);
+    if (d_free >= p.creep_margin)
+      limit = std::max(limit, p.creep_speed);
+    Decision d;
+    d.action = CLEAR;
+    d.limit = limit;
+    d.free = d_free;
+    d.protective = d_prot;
+    d.protective_request = d_prot_req;
+    d.warning = d_warn;
+    d.has_nearest = free.has_point;
+    d.nearest = free.point;
+    d.scanner = who;
+    if (!who.empty())
+      d.scan_stamp = scans_[scannerIndex(who)].stamp;
+    d.direction = direction;
+    d.slope = slope;
+    if (v >= p.stop_speed && d_free < d_prot)
+    {
+      d.action = STOP;
+      d.field = "protective";
+      d.reason = format("obstacle %.2f m along the path, inside the protective field (%.2f m at %.2f m/s)",
+                        std::max(d_free, 0.0), d_prot, v);
+      d.limit = 0.0;
+      return enter(d);
+    }
+    if (!p.zone.empty())
+    {
+      const std::string z = zoneCheck(std::max(d_prot, d_prot_req));
+      if (!z.empty())
+      {
+        d.field = "zone";
+        d.reason = z;
+        d.limit = 0.0;
+        if (v >= p.stop_speed)
+        {
+          d.action = STOP;
+          return enter(d);
+        }
+        d.action = HOLD;
+        mode_ = HOLD;
+        clear_since_set_ = false;
+        setLast(d);
+        return d;
+      }
+    }
+    if (d.limit < v_req)
+    {
+      d.field = "warning";
+      d.reason = format("obstacle %.2f m along the path in the warning field: speed limited to %.2f m/s",
+                        std::max(d_free, 0.0), d.limit);
+    }
+    return cycle(d, now, req_speed);
+  }
+
+  Setpoint command(const Decision& d, double req_speed, double req_handlebar, double req_brake) const
+  {
+    if (d.action == STOP || d.action == HOLD || d.action == FAULT)
+      return Setpoint{ 0.0, has_state_ ? state_h_ : req_handlebar, std::max(req_brake, p_.stop_brake) };
+    const double v = std::max(-d.limit, std::min(d.limit, req_speed));
+    return Setpoint{ v, req_handlebar, req_brake };
+  }
+
+private:
+  struct ScanState
+  {
+    double stamp = -kInf;
+    std::vector<Point> points;
+    double invalid_fraction = 0.0;
+    std::string error;
+  };
+  struct PoseState
+  {
+    double stamp = 0.0, x = 0.0, y = 0.0, yaw = 0.0, sd = 0.0;
+  };
+
+  size_t scannerIndex(const std::string& topic) const
+  {
+    for (size_t i = 0; i < p_.scanners.size(); ++i)
+      if (p_.scanners[i].topic == topic)
+        return i;
+    return 0;
+  }
+
+  std::string faultReason(double now) const
+  {
+    if (!has_state_)
+      return "no vehicle state yet (vehicle/state)";
+    double age = now - state_t_;
+    if (age > p_.state_timeout)
+      return format("vehicle state silent for %.2f s (> %s s)", age, pyfloat(p_.state_timeout).c_str());
+    if (!p_.zone.empty())
+    {
+      if (!has_pose_)
+        return "no pose yet (localization/predicted), needed for the operating zone";
+      age = now - pose_.stamp;
+      if (age > p_.pose_timeout)
+        return format("pose silent for %.2f s (> %s s), needed for the operating zone", age, pyfloat(p_.pose_timeout).c_str());
+    }
+    return "";
+  }
+
+  static bool covers(const Scanner& s, int direction)
+  {
+    return s.covers == "both" || (s.covers == "forward") == (direction > 0);
+  }
+
+  std::string scannerFault(double now, int direction) const
+  {
+    for (size_t i = 0; i < p_.scanners.size(); ++i)
+    {
+      const Scanner& s = p_.scanners[i];
+      if (!covers(s, direction))
+        continue;
+      const ScanState& sc = scans_[i];
+      if (sc.stamp == -kInf)
+        return "no scan yet from " + s.topic;
+      const double age = now - sc.stamp;
+      if (age > p_.scan_timeout)
+        return format("%s silent for %.2f s (> %s s)", s.topic.c_str(), age, pyfloat(p_.scan_timeout).c_str());
+      if (!sc.error.empty())
+        return s.topic + ": " + sc.error;
+      if (sc.invalid_fraction > p_.blind_fraction)
+        return format("%s blinded: %.0f %% of its rays invalid", s.topic.c_str(), 100.0 * sc.invalid_fraction);
+    }
+    return "";
+  }
+
+  // Every fresh scanner's points into points_ (owners_: each point's scanner)
+  void gatherPoints(double now, std::vector<double>& stamps)
+  {
+    points_.clear();
+    owners_.clear();
+    for (size_t i = 0; i < p_.scanners.size(); ++i)
+    {
+      const ScanState& sc = scans_[i];
+      if (!sc.error.empty() || now - sc.stamp > p_.scan_timeout)
+        continue;
+      points_.insert(points_.end(), sc.points.begin(), sc.points.end());
+      stamps.push_back(sc.stamp);
+      owners_.insert(owners_.end(), sc.points.size(), p_.scanners[i].topic);
+    }
+  }
+
+  static double round2(double h) { return std::nearbyint(h * 100.0) / 100.0; }
+
+  // The sweep and its free distance, reused while the scans, the direction and (to 0.01 rad)
+  // the handlebar angles stay the same (guard.Guard._free)
+  const Free& freeCached(int direction, double h0, double h1, double speed, double length,
+                         const std::vector<double>& stamps)
+  {
+    const double r0 = round2(h0), r1 = round2(h1);
+    const double vq = std::ceil(speed / 0.25), lq = std::ceil(length / 0.5);
+    if (cache_valid_ && cache_stamps_ == stamps && cache_dir_ == direction && cache_h0_ == r0 && cache_h1_ == r1 &&
+        cache_v_ == vq && cache_l_ == lq)
+      return cache_free_;
+    poses_ = sweep(direction, r0, r1, v_.max_rate, 0.25 * vq, 0.5 * lq, p_.step, v_.wheelbase, v_.ratio);
+    cache_free_ = freeDistance(fp_, poses_, points_, p_.step);
+    cache_valid_ = true;
+    cache_stamps_ = stamps;
+    cache_dir_ = direction;
+    cache_h0_ = r0;
+    cache_h1_ = r1;
+    cache_v_ = vq;
+    cache_l_ = lq;
+    return cache_free_;
+  }
+
+  std::string zoneCheck(double d_prot) const
+  {
+    const PoseState& ps = pose_;
+    if (ps.sd > p_.max_position_sd)
+      return format("position uncertain: sd %.2f m (> %s m) in the operating zone", ps.sd, pyfloat(p_.max_position_sd).c_str());
+    const Footprint fp = fp_.grown(p_.zone_sigmas * ps.sd);
+    const double c = std::cos(ps.yaw), s = std::sin(ps.yaw);
+    for (size_t k = 0; k < poses_.size(); ++k)
+    {
+      if (static_cast<double>(k) * p_.step > d_prot + p_.step)
+        continue;
+      const Pose2& q = poses_[k];
+      for (const Point& corner : fp.corners(ps.x + c * q.x - s * q.y, ps.y + s * q.x + c * q.y, ps.yaw + q.th))
+        if (!inPolygon(corner, p_.zone))
+          return "the footprint would leave the operating zone within the protective distance";
+    }
+    return "";
+  }
+
+  void setLast(const Decision& d)
+  {
+    last_ = d;
+    has_last_ = true;
+  }
+
+  Decision enter(const Decision& d)
+  {
+    if (d.action == STOP && mode_ != STOP)
+    {
+      if (d.field == "zone")
+        ++zone_stops;
+      else
+        ++protective_stops;
+    }
+    if (d.action == FAULT && mode_ != FAULT)
+      ++fault_stops;
+    if (mode_ != d.action)
+    {
+      stop_field_ = d.field;
+      stop_reason_ = d.reason;
+    }
+    mode_ = d.action;
+    clear_since_set_ = false;
+    release_set_ = false;
+    setLast(d);
+    return d;
+  }
+
+  Decision cycle(Decision d, double now, double req_speed)
+  {
+    const double v_m = has_state_ ? std::fabs(state_v_) : 0.0;
+    if (mode_ == STOP || mode_ == FAULT)
+    {
+      if (v_m < p_.stop_speed)
+        mode_ = HOLD;
+      else
+      {
+        d.action = mode_;
+        d.limit = 0.0;
+        d.field = stop_field_;
+        d.reason = "braking to a stop: " + stop_reason_;
+        setLast(d);
+        return d;
+      }
+    }
+    if (mode_ == HOLD)
+    {
+      const bool clear = d.free >= d.protective_request;
+      if (clear)
+      {
+        if (!clear_since_set_)
+        {
+          clear_since_set_ = true;
+          clear_since_ = now;
+        }
+        if (now - clear_since_ >= p_.clear_time)
+        {
+          mode_ = CLEAR;
+          release_set_ = true;
+          release_t_ = now;
+        }
+      }
+      else
+        clear_since_set_ = false;
+      if (mode_ == HOLD)
+      {
+        d.action = HOLD;
+        d.limit = 0.0;
+        const double waited = clear_since_set_ ? now - clear_since_ : 0.0;
+        if (clear)
+          d.reason = format("holding after a stop: field clear for %.1f of %s s", waited, pyfloat(p_.clear_time).c_str());
+        else if (d.reason.empty())
+          d.reason = "holding after a stop: the field is not clear";
+        setLast(d);
+        return d;
+      }
+    }
+    if (release_set_)
+    {
+      const double ramp = p_.release_accel * (now - release_t_);
+      if (ramp >= std::fabs(req_speed) || ramp >= d.limit)
+        release_set_ = false;
+      else
+      {
+        d.limit = ramp;
+        if (d.reason.empty())
+          d.reason = "releasing after a stop";
+      }
+    }
+    d.action = d.limit < std::fabs(req_speed) - 1e-6 ? SLOW : CLEAR;
+    setLast(d);
+    return d;
+  }
+
+  Params p_;
+  Vehicle v_;
+  Footprint fp_;
+  std::vector<ScanState> scans_;
+  bool has_state_ = false, has_slope_ = false, has_pose_ = false;
+  double state_t_ = 0.0, state_v_ = 0.0, state_h_ = 0.0, slope_t_ = 0.0, slope_p_ = 0.0;
+  PoseState pose_;
+  int mode_ = CLEAR;
+  bool clear_since_set_ = false, release_set_ = false, has_last_ = false;
+  double clear_since_ = 0.0, release_t_ = 0.0;
+  Decision last_;
+  std::string stop_field_, stop_reason_;
+  std::vector<Point> points_;
+  std::vector<std::string> owners_;
+  std::vector<Pose2> poses_;
+  bool cache_valid_ = false;
+  std::vector<double> cache_stamps_;
+  int cache_dir_ = 0;
+  double cache_h0_ = 0.0, cache_h1_ = 0.0, cache_v_ = 0.0, cache_l_ = 0.0;
+  Free cache_free_;
+};
+
+// ---------------------------------------------------------------- configuration
+// What quadrivio_navigation/ros/guard_config.py writes (read its docstring): the parameters
+// checked by the Python configuration code, the vehicle and the scenario's terrain.
+struct Config
+{
+  Params params;
+  Vehicle vehicle;
+  double wheel_radius = 0.0;
+  double imu_rpy[3] = { 0.0, 0.0, 0.0 };
+  std::string base_frame = "base_link";
+  double request_timeout = 0.25, ground_tolerance = 0.15;
+  Heightfield terrain;
+};
+
+// Read a configuration from ``in``; false with ``error`` naming the line that is wrong
+inline bool readConfig(FILE* in, Config& c, std::string& error)
+{
+  std::map<std::string, double*> fields = {
+    { "padding", &c.params.padding },
+    { "step", &c.params.step },
+    { "brake_decel", &c.params.brake_decel },
+    { "slow_decel", &c.params.slow_decel },
+    { "brake_latency", &c.params.brake_latency },
+    { "margin", &c.params.margin },
+    { "warning_margin", &c.params.warning_margin },
+    { "creep_speed", &c.params.creep_speed },
+    { "creep_margin", &c.params.creep_margin },
+    { "scan_period", &c.params.scan_period },
+    { "scan_timeout", &c.params.scan_timeout },
+    { "max_scan_age", &c.params.max_scan_age },
+    { "max_future", &c.params.max_future },
+    { "state_timeout", &c.params.state_timeout },
+    { "blind_fraction", &c.params.blind_fraction },
+    { "clear_time", &c.params.clear_time },
+    { "release_accel", &c.params.release_accel },
+    { "stop_speed", &c.params.stop_speed },
+    { "stop_brake", &c.params.stop_brake },
+    { "slope_unknown", &c.params.slope_unknown },
+    { "slope_tau", &c.params.slope_tau },
+    { "imu_timeout", &c.params.imu_timeout },
+    { "zone_sigmas", &c.params.zone_sigmas },
+    { "max_position_sd", &c.params.max_position_sd },
+    { "pose_timeout", &c.params.pose_timeout },
+  };
+  std::map<std::string, bool> seen;
+  char line[4096];
+  bool has_body = false, has_vehicle = false;
+  while (std::fgets(line, sizeof(line), in) != nullptr)
+  {
+    std::string text(line);
+    while (!text.empty() && (text.back() == '\n' || text.back() == '\r'))
+      text.pop_back();
+    char a[256] = { 0 }, b[256] = { 0 }, d[256] = { 0 };
+    double x[5];
+    if (text == "end")
+    {
+      for (const auto& kv : fields)
+        if (!seen[kv.first])
+          return error = "no value for parameter '" + kv.first + "'", false;
+      if (c.params.scanners.empty())
+        return error = "no scanner", false;
+      if (!has_body || !has_vehicle)
+        return error = "no vehicle geometry (body, vehicle)", false;
+      return true;
+    }
+    if (std::sscanf(line, "param %255s %lf", a, &x[0]) == 2)
+    {
+      auto it = fields.find(a);
+      if (it == fields.end())
+        return error = std::string("unknown parameter '") + a + "'", false;
+      *it->second = x[0];
+      seen[a] = true;
+    }
+    else if (std::sscanf(line, "scanner %255s %255s %255s", a, b, d) == 3)
+      c.params.scanners.push_back(Scanner{ a, b, d });
+    else if (std::sscanf(line, "zone %lf %lf", &x[0], &x[1]) == 2)
+      c.params.zone.push_back(Point{ x[0], x[1] });
+    else if (std::sscanf(line, "body %lf %lf %lf %lf", &x[0], &x[1], &x[2], &x[3]) == 4)
+    {
+      c.vehicle.body = Footprint{ x[0], x[1], x[2], x[3] };
+      has_body = true;
+    }
+    else if (std::sscanf(line, "vehicle %lf %lf %lf %lf", &x[0], &x[1], &x[2], &x[3]) == 4)
+    {
+      c.vehicle.wheelbase = x[0];
+      c.vehicle.ratio = x[1];
+      c.vehicle.max_rate = x[2];
+      c.wheel_radius = x[3];
+      has_vehicle = true;
+    }
+    else if (std::sscanf(line, "imu_rpy %lf %lf %lf", &x[0], &x[1], &x[2]) == 3)
+      std::copy(x, x + 3, c.imu_rpy);
+    else if (std::sscanf(line, "node base_frame %255s", a) == 1)
+      c.base_frame = a;
+    else if (std::sscanf(line, "node request_timeout %lf", &x[0]) == 1)
+      c.request_timeout = x[0];
+    else if (std::sscanf(line, "node ground_tolerance %lf", &x[0]) == 1)
+      c.ground_tolerance = x[0];
+    else if (std::sscanf(line, "terrain %d %d %lf %lf %lf", &c.terrain.rows, &c.terrain.cols, &x[0], &x[1], &x[2]) == 5)
+    {
+      Heightfield& hf = c.terrain;
+      if (hf.rows < 2 || hf.cols < 2 || hf.rows > 100000 || hf.cols > 100000 || !(x[0] > 0.0))
+        return error = "bad terrain grid: " + text, false;
+      hf.res = x[0];
+      hf.x0 = x[1];
+      hf.y0 = x[2];
+      hf.z.resize(static_cast<size_t>(hf.rows) * static_cast<size_t>(hf.cols));
+      if (std::fread(hf.z.data(), sizeof(double), hf.z.size(), in) != hf.z.size())
+        return error = "the terrain's heights end early", false;
+      if (std::fgetc(in) != '\n')
+        return error = "the terrain's heights are longer than its grid", false;
+    }
+    else
+      return error = "cannot read the line '" + text + "'", false;
+  }
+  return error = "the configuration ends before 'end'", false;
+}
+
+}  // namespace guard
+}  // namespace quadrivio_navigation
