@@ -11,8 +11,8 @@ import rasterio  # noqa: E402  Debian's python3-rasterio (make setup installs it
 
 from quadrivio_description.config import ConfigError  # noqa: E402
 from quadrivio_description.geodesy import LocalFrame  # noqa: E402
-from quadrivio_terrain.georaster import (crs_to_local, dem_heightfield, enu_to_lonlat, local_to_crs,  # noqa: E402
-                                             lonlat_to_enu, read_geotiff, resample_to_local)
+from quadrivio_terrain.georaster import (crs_to_local, dem_heightfield, local_to_crs, read_geotiff,  # noqa: E402
+                                             resample_to_local)
 from quadrivio_terrain.terrain import TerrainParams, build_heightfield  # noqa: E402
 
 FRAME = LocalFrame(45.478070, 9.227690, 165.0)  # the default site (Milan)
@@ -44,15 +44,25 @@ def write_dem(path, crs=UTM33, pixel=1.0, half=130.0, nodata=None, hole=None, sc
     return path
 
 
-def test_local_to_lonlat_agrees_with_the_local_frame():
-    e, n = np.array([0.0, 250.0, -400.0, 33.3]), np.array([0.0, -120.0, 300.0, 999.0])
-    lon, lat, h = enu_to_lonlat(FRAME, e, n, np.zeros(4))
-    for k in range(4):
-        la, lo, alt = FRAME.enu_to_lla(e[k], n[k], 0.0)
-        assert lat[k] == pytest.approx(la, abs=1e-9) and lon[k] == pytest.approx(lo, abs=1e-9)
-        assert h[k] == pytest.approx(alt, abs=1e-3)
-    back = lonlat_to_enu(FRAME, lon, lat, h)
+def test_the_local_frames_geodesy_agrees_with_proj():
+    # the frame's own formulas (one for a fix, the same on arrays for a raster's pixels)
+    # against PROJ's geocentric <-> geographic conversion, an implementation not ours
+    import pyproj
+
+    e, n = np.array([0.0, 250.0, -400.0, 33.3, 5000.0]), np.array([0.0, -120.0, 300.0, 999.0, -7000.0])
+    u = np.array([0.0, 3.0, -12.0, 150.0, 40.0])
+    lat, lon, h = FRAME.enu_to_lla_arrays(e, n, u)
+    x, y, z = FRAME.enu_to_ecef(e, n, u)
+    to_geo = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    plon, plat, ph = to_geo.transform(x, y, z)
+    assert np.allclose(lat, plat, atol=1e-9) and np.allclose(lon, plon, atol=1e-9)
+    assert np.allclose(h, ph, atol=1e-3)
+    for k in range(len(e)):  # the scalar path is the same formula
+        la, lo, alt = FRAME.enu_to_lla(e[k], n[k], u[k])
+        assert (la, lo) == pytest.approx((lat[k], lon[k]), abs=1e-12) and alt == pytest.approx(h[k], abs=1e-6)
+    back = FRAME.lla_to_enu_arrays(lat, lon, h)
     assert np.allclose(back[0], e, atol=1e-4) and np.allclose(back[1], n, atol=1e-4)
+    assert np.allclose(back[2], u, atol=1e-4)
 
 
 def test_a_utm_dem_reads_back_to_the_same_heights_at_the_same_local_coordinates(tmp_path):

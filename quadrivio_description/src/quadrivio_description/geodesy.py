@@ -19,27 +19,54 @@ B = A * (1.0 - F)  # [m] semi-minor axis
 EP2 = (A * A - B * B) / (B * B)  # second eccentricity squared
 
 
+class _Math:
+    """The functions the formulas below use, on floats (math) or on arrays (numpy): one
+    formula for a fix and for a raster's million pixels."""
+
+    def __init__(self, module) -> None:
+        self.sin, self.cos, self.sqrt, self.hypot = module.sin, module.cos, module.sqrt, module.hypot
+        self.atan2 = getattr(module, "atan2", None) or module.arctan2
+        self.radians, self.degrees = module.radians, module.degrees
+
+
+_SCALAR = _Math(math)
+
+
+def _numpy() -> _Math:
+    import numpy as np
+
+    return _Math(np)
+
+
+def _lla_to_ecef(lat_deg, lon_deg, alt, m: _Math):
+    lat, lon = m.radians(lat_deg), m.radians(lon_deg)
+    s, c = m.sin(lat), m.cos(lat)
+    n = A / m.sqrt(1.0 - E2 * s * s)  # prime vertical radius of curvature
+    return ((n + alt) * c * m.cos(lon), (n + alt) * c * m.sin(lon), (n * (1.0 - E2) + alt) * s)
+
+
+def _ecef_to_lla(x, y, z, m: _Math):
+    lon = m.atan2(y, x)
+    p = m.hypot(x, y)
+    th = m.atan2(z * A, p * B)
+    lat = m.atan2(z + EP2 * B * m.sin(th) ** 3, p - E2 * A * m.cos(th) ** 3)
+    for _ in range(2):
+        n = A / m.sqrt(1.0 - E2 * m.sin(lat) ** 2)
+        alt = p / m.cos(lat) - n
+        lat = m.atan2(z, p * (1.0 - E2 * n / (n + alt)))
+    n = A / m.sqrt(1.0 - E2 * m.sin(lat) ** 2)
+    alt = p / m.cos(lat) - n
+    return m.degrees(lat), m.degrees(lon), alt
+
+
 def lla_to_ecef(lat_deg: float, lon_deg: float, alt: float) -> Tuple[float, float, float]:
     """Geodetic (deg, deg, m above the ellipsoid) to ECEF [m]."""
-    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
-    s, c = math.sin(lat), math.cos(lat)
-    n = A / math.sqrt(1.0 - E2 * s * s)  # prime vertical radius of curvature
-    return ((n + alt) * c * math.cos(lon), (n + alt) * c * math.sin(lon), (n * (1.0 - E2) + alt) * s)
+    return _lla_to_ecef(lat_deg, lon_deg, alt, _SCALAR)
 
 
 def ecef_to_lla(x: float, y: float, z: float) -> Tuple[float, float, float]:
     """ECEF [m] to geodetic (deg, deg, m); Bowring's formula refined by two iterations (< 1 mm)."""
-    lon = math.atan2(y, x)
-    p = math.hypot(x, y)
-    th = math.atan2(z * A, p * B)
-    lat = math.atan2(z + EP2 * B * math.sin(th) ** 3, p - E2 * A * math.cos(th) ** 3)
-    for _ in range(2):
-        n = A / math.sqrt(1.0 - E2 * math.sin(lat) ** 2)
-        alt = p / math.cos(lat) - n
-        lat = math.atan2(z, p * (1.0 - E2 * n / (n + alt)))
-    n = A / math.sqrt(1.0 - E2 * math.sin(lat) ** 2)
-    alt = p / math.cos(lat) - n
-    return math.degrees(lat), math.degrees(lon), alt
+    return _ecef_to_lla(x, y, z, _SCALAR)
 
 
 class LocalFrame:
@@ -68,3 +95,16 @@ class LocalFrame:
 
     def lla_to_enu(self, lat_deg: float, lon_deg: float, alt: float) -> Tuple[float, float, float]:
         return self.ecef_to_enu(*lla_to_ecef(lat_deg, lon_deg, alt))
+
+    # the same for arrays (numpy; a raster's pixels): east, north, up [m] <-> lat, lon [deg], alt [m]
+    def enu_to_lla_arrays(self, e, n, u):
+        import numpy as np
+
+        e, n, u = np.broadcast_arrays(np.asarray(e, float), np.asarray(n, float), np.asarray(u, float))
+        return _ecef_to_lla(*self.enu_to_ecef(e, n, u), _numpy())
+
+    def lla_to_enu_arrays(self, lat_deg, lon_deg, alt):
+        import numpy as np
+
+        return self.ecef_to_enu(*_lla_to_ecef(np.asarray(lat_deg, float), np.asarray(lon_deg, float),
+                                              np.asarray(alt, float), _numpy()))

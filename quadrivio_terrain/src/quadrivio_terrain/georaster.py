@@ -39,7 +39,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from quadrivio_description.config import ConfigError
-from quadrivio_description.geodesy import A, B, E2, EP2, LocalFrame
+from quadrivio_description.geodesy import LocalFrame
 
 
 def _proj_data() -> None:
@@ -63,26 +63,6 @@ def _libs():
 
 
 # ------------------------------------------------------------------ local <-> lon/lat
-def enu_to_lonlat(frame: LocalFrame, e, n, u=0.0) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`LocalFrame.enu_to_lla` for arrays: (lon [deg], lat [deg], height [m])."""
-    e, n, u = np.broadcast_arrays(np.asarray(e, float), np.asarray(n, float), np.asarray(u, float))
-    R, o = frame.R, frame.origin
-    x = o[0] + R[0][0] * e + R[1][0] * n + R[2][0] * u
-    y = o[1] + R[0][1] * e + R[1][1] * n + R[2][1] * u
-    z = o[2] + R[0][2] * e + R[1][2] * n + R[2][2] * u
-    lon = np.arctan2(y, x)
-    p = np.hypot(x, y)
-    th = np.arctan2(z * A, p * B)
-    lat = np.arctan2(z + EP2 * B * np.sin(th) ** 3, p - E2 * A * np.cos(th) ** 3)
-    for _ in range(2):
-        nn = A / np.sqrt(1.0 - E2 * np.sin(lat) ** 2)
-        alt = p / np.cos(lat) - nn
-        lat = np.arctan2(z, p * (1.0 - E2 * nn / (nn + alt)))
-    nn = A / np.sqrt(1.0 - E2 * np.sin(lat) ** 2)
-    alt = p / np.cos(lat) - nn
-    return np.degrees(lon), np.degrees(lat), alt
-
-
 def _crs(value, source: str):
     _, pyproj = _libs()
     try:
@@ -95,7 +75,7 @@ def local_to_crs(frame: LocalFrame, crs, e, n, source: str = "raster") -> Tuple[
     """Local (east, north) [m] to coordinates (x, y) of ``crs`` (anything pyproj takes)."""
     _, pyproj = _libs()
     crs = _crs(crs, source)
-    lon, lat, _ = enu_to_lonlat(frame, e, n)
+    lat, lon, _ = frame.enu_to_lla_arrays(e, n, 0.0)
     tr = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
     x, y = tr.transform(lon, lat)
     return np.asarray(x, float), np.asarray(y, float)
@@ -107,20 +87,8 @@ def crs_to_local(frame: LocalFrame, crs, x, y, source: str = "raster") -> Tuple[
     crs = _crs(crs, source)
     tr = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
     lon, lat = tr.transform(np.asarray(x, float), np.asarray(y, float))
-    e, n, _ = lonlat_to_enu(frame, lon, lat, frame.alt0)
+    e, n, _ = frame.lla_to_enu_arrays(lat, lon, frame.alt0)
     return e, n
-
-
-def lonlat_to_enu(frame: LocalFrame, lon, lat, h) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`LocalFrame.lla_to_enu` for arrays (lon, lat [deg], height [m])."""
-    la, lo = np.radians(np.asarray(lat, float)), np.radians(np.asarray(lon, float))
-    s = np.sin(la)
-    nn = A / np.sqrt(1.0 - E2 * s * s)
-    h = np.asarray(h, float)
-    d = ((nn + h) * np.cos(la) * np.cos(lo) - frame.origin[0], (nn + h) * np.cos(la) * np.sin(lo) - frame.origin[1],
-         (nn * (1.0 - E2) + h) * s - frame.origin[2])
-    R = frame.R
-    return tuple(R[k][0] * d[0] + R[k][1] * d[1] + R[k][2] * d[2] for k in range(3))  # type: ignore[return-value]
 
 
 # ------------------------------------------------------------------------- rasters
