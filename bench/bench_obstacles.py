@@ -22,7 +22,8 @@ vehicle's standstill), ``zone_exits`` (runs whose true footprint left the zone);
 person_on_path; ``guard_cpu_frac_python``: the Python reference guard's in the same run again) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
 in this process, one update per scan).
 
-``--seeds N`` (default 10), ``--speeds 2,3``, ``--rtf`` (default 2), ``--only a,b``.
+``--seeds N`` (default 10), ``--speeds 2,3``, ``--rtf`` (default 2), ``--only a,b``, ``--guard
+guard`` (the Python reference guard in the scenario runs; default guard_cpp).
 """
 import argparse
 import json
@@ -164,6 +165,8 @@ def main() -> None:
     ap.add_argument("--speeds", default="2,3")
     ap.add_argument("--rtf", type=float, default=2.0)
     ap.add_argument("--only", default="", help="comma-separated scenario names")
+    ap.add_argument("--guard", choices=("guard_cpp", "guard"), default="guard_cpp",
+                    help="the guard of the scenario runs (the CPU runs measure both)")
     ap.add_argument("--out", default=os.path.join(tempfile.gettempdir(), "quadrivio_bench_obstacles"))
     args = ap.parse_args()
     speeds = [float(s) for s in args.speeds.split(",")]
@@ -179,7 +182,7 @@ def main() -> None:
             for seed in range(args.seeds):
                 k += 1
                 out = os.path.join(args.out, f"{name}_{speed:g}_s{seed}")
-                m = run(path, seed, out, args.rtf)
+                m = run(path, seed, out, args.rtf, extra=["--guard", args.guard])
                 m.update(scenario=name, speed=speed, seed=seed)
                 runs.append(m)
                 print(f"[bench obstacles] {k}/{total} {name} {speed:g} m/s seed {seed}: "
@@ -188,7 +191,8 @@ def main() -> None:
                       f"stops {m.get('protective_stops')} (false {m.get('false_stops')}), "
                       f"{time.monotonic() - t_start:.0f} s", flush=True)
     ok = [r for r in runs if not r.get("failed")]
-    result = {"machine": machine(), "seeds": args.seeds, "speeds": speeds, "rtf": args.rtf, "runs": len(runs),
+    result = {"machine": machine(), "seeds": args.seeds, "speeds": speeds, "rtf": args.rtf, "guard": args.guard,
+              "runs": len(runs),
               "runs_failed": len(runs) - len(ok)}
     result["obstacle_collisions"] = int(sum(r.get("collisions") or 0 for r in ok))
     clear = [r["min_clearance_m"] for r in ok if r["scenario"] in WITH and r.get("min_clearance_m") is not None]
