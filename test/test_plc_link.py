@@ -433,7 +433,9 @@ def test_strangers_holding_the_authentication_slots_cannot_lock_out_the_key_hold
             wait(lambda: plc.server.session is None)
         assert None not in times, f"sessions within 1 s: {sum(t is not None for t in times)} of 20"
         assert attacker.opened > held  # the stranger kept reopening what was evicted
-        assert plc.server.stats.evicted >= 20
+        # and made way by eviction: every slot the stranger first held at least once (a session may
+        # also find a slot the stranger has not reopened yet, so not necessarily 20)
+        assert plc.server.stats.evicted >= held
     finally:
         attacker.close()
 
