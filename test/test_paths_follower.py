@@ -193,6 +193,27 @@ def test_follower_drives_reverse_segments_and_cusps_to_the_goal():
     assert math.hypot(gx - x, gy - y) < 0.5 and abs(math.atan2(math.sin(yaw - gth), math.cos(yaw - gth))) < 0.26
 
 
+def test_stopped_beside_a_cusp_the_follower_takes_the_next_segment():
+    """Stopped at the end of a segment 0.8 m beside the cusp (tight manoeuvres in an orchard,
+    a replan's 7 cusps at factor 2), the follower stood with a zero setpoint for good,
+    FOLLOWING: the end was reached along the path, the cusp was beyond cusp_tolerance, and a
+    zero setpoint is no stall. It must take the reverse segment from where it stands."""
+    route = make_route(three_point_route(), SpeedProfileParams(speed=1.5))
+    pp = PurePursuit(FollowerParams(), route, load_vehicle())
+    pp.set_limits(1.0, 1.0)
+    assert FollowerParams().cusp_tolerance < 0.8
+    c = None
+    for k in range(100):  # 2 s standing at (8.0, 0.8): the segment's end, 0.8 m to the side
+        c = pp.update(8.0, 0.8, 0.0, 0.0, t=0.02 * k)
+    assert c.status == FOLLOWING and c.segment == 1 and c.direction == -1
+    assert c.speed <= -FollowerParams().min_speed + 1e-9, "standing beside the cusp instead of backing up"
+    # held short of the cusp by the guard, farther than cusp_tolerance: it waits (no switch)
+    pp = PurePursuit(FollowerParams(), route, load_vehicle())
+    for k in range(50):
+        c = pp.update(6.5, 0.0, 0.0, 0.0, t=0.02 * k, held=True)
+    assert c.segment == 0 and c.speed > 0.0
+
+
 def test_follower_slows_down_to_the_end_instead_of_braking_hard():
     pts = np.column_stack([np.linspace(0, 25, 251), np.zeros(251)])
     route = make_route(poses_along(pts, 0.0), SpeedProfileParams(speed=2.0, accel=1.0, decel=1.0))

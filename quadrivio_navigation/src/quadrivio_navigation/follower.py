@@ -17,9 +17,10 @@ is the segment's profile at the nearest point (at least ``min_speed``, at most
 ``reverse_speed`` backwards), signed by the direction, and 0 within ``stop_distance`` of
 the segment's end: the profile brings the vehicle to rest at every cusp and at the goal.
 
-At a cusp, once stopped (``|v| < stop_speed``) within ``cusp_tolerance`` of it, the next
+At a cusp, once stopped (``|v| < stop_speed``) at the segment's end (reached along the path,
+whatever the sideways offset: the next segment's pure pursuit takes it up), the next
 segment starts; so it does when the vehicle stands held short of the cusp (by the
-obstacle guard) within that distance. At the route's end, once stopped, the follower is DONE when it is within
+obstacle guard) within ``cusp_tolerance`` of it. At the route's end, once stopped, the follower is DONE when it is within
 ``goal_tolerance`` and ``heading_tolerance`` (15 deg) of the goal pose, DONE with a parking
 error (said in the reason, ``parking_error``) within twice those, and ABORTED (missed the
 goal, with the errors) beyond. A stale pose must not steer the vehicle: one older than
@@ -44,7 +45,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_description.kinematics import delta_for_curvature
 from quadrivio_description.vehicle import VehicleParams
 
@@ -67,7 +68,8 @@ class FollowerParams:
                                          "it is DONE with a parking error, beyond them ABORTED")
     stop_distance: float = param(0.1, lo=0.0, hi=5.0, unit="m", doc="speed setpoint 0 this far from a segment's end")
     stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
-    cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m", doc="change direction within this of a cusp")
+    cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m",
+                                  doc="held short of a cusp (by the guard), change direction within this of it")
     max_cross_track: float = param(4.0, lo=0.1, hi=100.0, unit="m", doc="abort beyond this cross-track error")
     pose_budget: float = param(0.25, lo=0.01, hi=10.0, unit="m",
                                doc="how far the vehicle may drive on the last pose before it is stale: the pose's "
@@ -268,10 +270,12 @@ class PurePursuit:
         # at the end: by arc length, or (close to it) by having reached the line through it
         at_end = seg_left <= self.p.stop_distance or (seg_left < self.p.lookahead_min and
                                                       along_end <= self.p.stop_distance)
-        # Held short of a cusp by the obstacle guard (the obstacle a replan turns back from
-        # stands beyond it), the vehicle changes direction where it stands
+        # At a cusp: stopped at the segment's end (along the path; a sideways offset is the next
+        # segment's to take up: stopped 0.7 m beside a cusp, the vehicle stood there for good),
+        # or held short of it by the obstacle guard within cusp_tolerance (the obstacle a replan
+        # turns back from stands beyond it): the vehicle changes direction where it stands
         if stopped and (at_end or held):
-            if not last and end_dist <= self.p.cusp_tolerance and not self.stopping:
+            if not last and not self.stopping and (at_end or end_dist <= self.p.cusp_tolerance):
                 self.k += 1  # the cusp: take the next segment, from rest
                 self.tracker = Tracker(self.route.segments[self.k].path, self.p.search_window)
                 self.sp_speed = 0.0
