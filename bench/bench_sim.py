@@ -15,7 +15,7 @@ import os
 import sys
 import time
 
-from quadrivio_description.config import from_mapping, load_yaml
+from quadrivio_config import from_mapping, load_yaml
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_sim.actuators import load_actuators

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_recordings.ros import import_map
 
 # The foreign recording's conventions: gyro in deg/s, accelerometer in g, magnetometer in

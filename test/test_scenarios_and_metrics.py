@@ -6,7 +6,7 @@ import pytest
 
 from quadrivio.metrics import CONTRACT_KEYS, RunData, Series, compute
 from quadrivio.scenario import load_scenario, scenarios_dir
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 
 
 @pytest.mark.parametrize("name", ["figure_eight", "rough_terrain", "orchard", "field"])

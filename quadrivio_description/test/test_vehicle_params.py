@@ -5,7 +5,7 @@ import os
 import pytest
 import yaml
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml, replace_nested, to_mapping
+from quadrivio_config import ConfigError, from_mapping, load_yaml, replace_nested, to_mapping
 from quadrivio_description.vehicle import VehicleParams, default_vehicle_file, load_vehicle
 
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from quadrivio_description.config import load_dataclass
+from quadrivio_config import load_dataclass
 from quadrivio_description.site import load_site
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle

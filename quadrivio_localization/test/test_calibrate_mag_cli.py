@@ -10,7 +10,7 @@ import rospy
 import yaml
 from sensor_msgs.msg import Imu, MagneticField
 
-from quadrivio_description.config import from_mapping
+from quadrivio_config import from_mapping
 from quadrivio_description.site import load_site
 from quadrivio_localization.ros.calibrate_mag_cli import main
 from quadrivio_localization.smoother import LocalizerParams

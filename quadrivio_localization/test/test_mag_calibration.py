@@ -64,7 +64,7 @@ def test_coverage():
 def test_simulator_calibration_file_matches_the_simulated_magnetometer():
     """quadrivio_sim/config/mag_calibration.yaml (fitted by calibrate_mag to a simulated
     drive) still describes quadrivio_sim/config/mag.yaml's distortion."""
-    from quadrivio_description.config import from_mapping, load_yaml
+    from quadrivio_config import from_mapping, load_yaml
     from quadrivio_localization.smoother import MagCalibration
     from quadrivio_sim.adapter_params import MagAdapterParams
     from quadrivio_sim.paths import package_file

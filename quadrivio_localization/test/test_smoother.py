@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from offline_run import resting_script, run
-from quadrivio_description.config import from_mapping, replace_nested
+from quadrivio_config import from_mapping, replace_nested
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_localization.smoother import Localizer, LocalizerParams

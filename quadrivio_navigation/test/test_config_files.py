@@ -6,7 +6,7 @@ import os
 import pytest
 import yaml
 
-from quadrivio_description.config import from_mapping
+from quadrivio_config import from_mapping
 from quadrivio_navigation.follower import FollowerConfig
 from quadrivio_navigation.guard import GuardParams
 from quadrivio_navigation.local_layer import LocalLayerParams

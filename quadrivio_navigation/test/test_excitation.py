@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_navigation.excitation import ExcitationParams, build
 
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quadrivio_description.config import ConfigError, from_mapping
+from quadrivio_config import ConfigError, from_mapping
 from quadrivio_description.vehicle import GRAVITY, load_vehicle
 from quadrivio_navigation.costmap import Footprint
 from quadrivio_navigation.fields import (ScanError, allowed_speed, check_scan, effective_decel, free_distance,

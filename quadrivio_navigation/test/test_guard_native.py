@@ -14,7 +14,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from quadrivio_description.config import replace_nested
+from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_navigation.attitude import Attitude
 from quadrivio_navigation.fields import ScanPoints

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_sim.actors import ActorMotion, load_actors
 
 

@@ -12,7 +12,7 @@ import rosbag
 import rospy
 import yaml
 
-from quadrivio_description.config import replace_nested
+from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_sim.actuators import load_actuators
 from quadrivio_sim.calibration import Series, simulate_handlebar, simulate_speed

@@ -200,7 +200,7 @@ def test_gps_episodes_depend_on_sim_time_only():
 def test_the_adapters_and_the_offline_runner_build_their_models_alike():
     """sensor_models is the one factory: the same seed and adapter name give the same draws,
     noise first, then latency; another name, another stream."""
-    from quadrivio_description.config import load_dataclass
+    from quadrivio_config import load_dataclass
     from quadrivio_sim.adapter_params import GpsAdapterParams, ImuAdapterParams
     from quadrivio_sim.noise import sensor_models
     from quadrivio_sim.paths import package_file

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml
+from quadrivio_config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import GRAVITY, load_vehicle
 from quadrivio_sim.actuators import load_actuators

@@ -8,7 +8,7 @@ import pytest
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml  # noqa: E402
+from quadrivio_config import ConfigError, from_mapping, load_yaml  # noqa: E402
 from quadrivio_description.urdf import build_urdf  # noqa: E402
 from quadrivio_description.vehicle import load_vehicle  # noqa: E402
 from quadrivio_sim.actuators import load_actuators  # noqa: E402
@@ -177,7 +177,7 @@ def test_solid_rear_axle_keeps_driving_over_big_bumps(vehicle):
 
 @pytest.mark.parametrize("drive", ["4wd", "4wd_locked"])
 def test_four_wheel_drive_modes(vehicle, drive):
-    from quadrivio_description.config import replace_nested
+    from quadrivio_config import replace_nested
 
     v = replace_nested(vehicle, {"drivetrain": {"drive": drive}})
     sim = make_sim(v, terrain={"kind": "procedural", "size": 200.0, "roughness": 0.0, "slope": [0.2, 0.0],

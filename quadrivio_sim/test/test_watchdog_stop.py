@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from quadrivio_description.config import from_mapping, load_yaml
+from quadrivio_config import from_mapping, load_yaml
 from quadrivio_description.urdf import build_urdf
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_plc import protocol as P

@@ -9,7 +9,7 @@ import pytest
 
 import rasterio  # noqa: E402  Debian's python3-rasterio (make setup installs it; no skip)
 
-from quadrivio_description.config import ConfigError  # noqa: E402
+from quadrivio_config import ConfigError  # noqa: E402
 from quadrivio_description.geodesy import LocalFrame  # noqa: E402
 from quadrivio_terrain.georaster import (crs_to_local, dem_heightfield, local_to_crs, read_geotiff,  # noqa: E402
                                              resample_to_local)

@@ -38,7 +38,7 @@ from typing import Dict, List, Optional
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 
 from .scenario import load_scenario
 

@@ -28,7 +28,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, load_yaml, replace_nested
+from quadrivio_config import ConfigError, load_yaml, replace_nested
 
 from .scenario import Scenario, _defaults, _section
 from .scenario import vehicle as scenario_vehicle

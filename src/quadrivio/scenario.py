@@ -31,7 +31,7 @@ import os
 from dataclasses import dataclass
 from typing import Any, Dict, Tuple
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, replace_nested
+from quadrivio_config import ConfigError, from_mapping, load_yaml, param, replace_nested
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from typing import List, Optional
 
-from .config import ConfigError
+from quadrivio_config import ConfigError
 from .urdf import build_urdf
 from .vehicle import default_vehicle_file, load_vehicle, scenario_vehicle
 

@@ -11,7 +11,7 @@ import math
 import os
 from dataclasses import dataclass
 
-from .config import from_mapping, load_yaml, param
+from quadrivio_config import from_mapping, load_yaml, param
 from .geodesy import LocalFrame
 from .vehicle import package_dir
 

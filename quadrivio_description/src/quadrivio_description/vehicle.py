@@ -16,7 +16,7 @@ import os
 from dataclasses import dataclass
 from typing import Any, Dict, Mapping, Optional, Tuple
 
-from .config import ConfigError, from_mapping, load_yaml, param, replace_nested
+from quadrivio_config import ConfigError, from_mapping, load_yaml, param, replace_nested
 from .paths import package_dir as _package_dir
 
 GRAVITY = 9.81  # [m/s^2]

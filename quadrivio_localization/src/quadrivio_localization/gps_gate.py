@@ -55,7 +55,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 # sensor_msgs/NavSatStatus
 STATUS_NAMES = {-1: "NO_FIX", 0: "FIX", 1: "SBAS_FIX", 2: "GBAS_FIX"}

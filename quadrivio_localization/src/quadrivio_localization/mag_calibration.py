@@ -24,7 +24,7 @@ from typing import Dict, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 
 class MagCalibrationError(ValueError):

@@ -9,7 +9,7 @@ from typing import Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from .gps_gate import GpsGateParams
 

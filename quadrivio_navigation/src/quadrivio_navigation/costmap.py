@@ -30,7 +30,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from .maps import OccupancyGrid
 

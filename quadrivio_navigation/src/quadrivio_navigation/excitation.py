@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import List, Tuple
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_config import ConfigError, param
 
 
 @dataclass(frozen=True)

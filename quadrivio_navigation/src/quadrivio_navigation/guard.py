@@ -41,7 +41,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_config import ConfigError, param
 from quadrivio_description.vehicle import VehicleParams
 
 from .costmap import Footprint

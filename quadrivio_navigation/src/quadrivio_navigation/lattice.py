@@ -39,7 +39,7 @@ from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from . import curves
 from .costmap import LETHAL, CostGrid, Footprint, densify, footprint_cells

@@ -37,7 +37,7 @@ from typing import Callable, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 
 @dataclass(frozen=True)

@@ -50,7 +50,7 @@ from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, load_yaml, param
+from quadrivio_config import ConfigError, load_yaml, param
 
 UNKNOWN = -1
 FREE = 0

@@ -41,7 +41,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 
 from . import curves
 

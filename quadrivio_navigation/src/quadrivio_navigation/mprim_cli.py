@@ -17,7 +17,7 @@ import os
 import sys
 from typing import List, Optional
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_description.vehicle import load_vehicle
 
 from .mprim import GenerationParams, PrimitiveSet, check_for_vehicle, generate, write_mprim

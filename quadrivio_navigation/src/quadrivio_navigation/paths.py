@@ -19,7 +19,7 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml, replace_nested
+from quadrivio_config import ConfigError, from_mapping, load_yaml, replace_nested
 from quadrivio_description.vehicle import load_vehicle
 
 from .maps import load_map

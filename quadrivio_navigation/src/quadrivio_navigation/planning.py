@@ -27,7 +27,7 @@ from typing import Callable, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from .curves import wrap_angles
 from .costmap import LETHAL, CostGrid, CostParams, Footprint, max_safe_slope, slope_grid

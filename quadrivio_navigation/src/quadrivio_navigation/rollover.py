@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 OK, WARN, TRIP = 0, 1, 2
 AIRBORNE = 0.5  # [g] a specific force below this: not standing on the wheels

@@ -23,7 +23,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Deque, Dict, List, Optional, Tuple
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from . import protocol
 

@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass
 from typing import List, Optional, Sequence, Tuple
 
-from quadrivio_description.config import ConfigError, from_mapping, param
+from quadrivio_config import ConfigError, from_mapping, param
 
 DEFAULT_SIZE = {"person": (0.6, 0.6, 1.8), "animal": (1.2, 0.5, 1.0), "vehicle": (2.5, 1.5, 1.6),
                 "object": (1.0, 1.0, 1.0)}

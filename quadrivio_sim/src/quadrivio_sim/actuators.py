@@ -47,7 +47,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Deque, Optional, Tuple
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_description.vehicle import VehicleParams
 
 
@@ -339,6 +339,6 @@ class LowLevelControl:
 
 
 def load_actuators(path: str) -> ActuatorParams:
-    from quadrivio_description.config import load_dataclass
+    from quadrivio_config import load_dataclass
 
     return load_dataclass(ActuatorParams, path)

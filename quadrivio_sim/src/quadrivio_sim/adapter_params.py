@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 from .noise import GpsNoiseParams, ImuNoiseParams, LaserNoiseParams, LatencyParams, MagNoiseParams
 

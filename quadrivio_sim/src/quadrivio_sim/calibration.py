@@ -31,7 +31,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from quadrivio_description.config import replace_nested
+from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import GRAVITY, VehicleParams
 
 from .actuators import ActuatorParams, HandlebarLoop, HandlebarLoopParams, SpeedLoop, SpeedLoopParams, StepReference

@@ -36,7 +36,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Dict, List, Optional, Tuple
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_plc import protocol
 
 from .actuators import Actuation, LowLevelControl

@@ -19,7 +19,7 @@ import os
 from dataclasses import dataclass
 from typing import List, Sequence, Tuple
 
-from quadrivio_description.config import ConfigError, load_yaml
+from quadrivio_config import ConfigError, load_yaml
 
 
 @dataclass(frozen=True)

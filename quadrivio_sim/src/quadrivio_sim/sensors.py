@@ -23,7 +23,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_description.site import MagneticField
 from quadrivio_description.vehicle import GRAVITY
 

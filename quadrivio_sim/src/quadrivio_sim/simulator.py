@@ -24,7 +24,7 @@ from typing import Callable, Deque, Dict, List, Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_config import ConfigError, param
 from quadrivio_description.site import SiteParams, load_site
 from quadrivio_description.vehicle import VehicleParams
 from quadrivio_plc import protocol

@@ -31,7 +31,7 @@ import math
 from dataclasses import dataclass
 from typing import List, Optional, Tuple
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 
 
 @dataclass(frozen=True)

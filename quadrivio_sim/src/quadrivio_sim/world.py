@@ -28,7 +28,7 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_config import ConfigError, param
 from quadrivio_description.frames import matrix_from_quaternion, quaternion_from_rpy, rpy_from_quaternion
 from quadrivio_description.kinematics import ackermann_wheel_angles
 from quadrivio_description.vehicle import GRAVITY, VehicleParams

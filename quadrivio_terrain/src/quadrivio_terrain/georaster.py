@@ -22,7 +22,7 @@ about 1.4 deg at 45 deg N, 3 deg from the central meridian: 16 m across 650 m).
   (``quadrivio_navigation.maps``) uses it for GeoTIFF maps and for map_server maps whose
   YAML names a ``crs``.
 
-Bad input gets a :class:`~quadrivio_description.config.ConfigError` naming the file and the
+Bad input gets a :class:`~quadrivio_config.ConfigError` naming the file and the
 problem: no georeferencing, a CRS PROJ does not know, an area the raster does not cover,
 no-data cells in the area. GDAL's readers (rasterio) and PROJ (pyproj) come from Debian
 (``python3-rasterio``, ``python3-pyproj``); PROJ's database is looked up in
@@ -38,7 +38,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_description.geodesy import LocalFrame
 
 

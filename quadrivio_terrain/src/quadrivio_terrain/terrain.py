@@ -28,7 +28,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from quadrivio_description.config import ConfigError, param
+from quadrivio_config import ConfigError, param
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import os
 import sys
 from typing import List, Optional
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
 

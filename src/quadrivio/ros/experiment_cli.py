@@ -32,7 +32,7 @@ import time
 import xmlrpc.client
 from typing import Dict, List, Optional, Set, Tuple
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_runtime.lockstep_wire import ARMED_PARAM
 
 from ..bus_stats import BusStatsError, behind, inbound_ports, received, sent, socket_quiet, tcp_queues

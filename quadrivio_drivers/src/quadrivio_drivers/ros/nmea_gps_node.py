@@ -21,7 +21,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import TwistStamped
 from sensor_msgs.msg import NavSatFix, NavSatStatus
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_runtime.ros import diagnostics, init_node
 from quadrivio_runtime.ros.params import node_params
 from quadrivio_runtime.ros.timer import guarded_timer

@@ -24,7 +24,7 @@ from typing import List, Tuple
 import numpy as np
 import yaml
 
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle

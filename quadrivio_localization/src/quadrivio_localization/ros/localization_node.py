@@ -31,7 +31,7 @@ from sensor_msgs.msg import Imu, MagneticField, NavSatFix
 from quadrivio_runtime.ros import init_node
 from quadrivio_description.frames import quaternion_from_yaw
 from quadrivio_description.kinematics import max_delta
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import (node_params, private_params, site_params, split_params,

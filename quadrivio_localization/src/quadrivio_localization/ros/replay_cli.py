@@ -29,7 +29,7 @@ import tempfile
 import time
 from typing import Any, Dict, Iterator, List, Tuple
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml
+from quadrivio_config import ConfigError, from_mapping, load_yaml
 from quadrivio_description.paths import package_dir as _package_dir
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site

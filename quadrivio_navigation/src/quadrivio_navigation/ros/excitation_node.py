@@ -22,7 +22,7 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_description.config import ConfigError
+from quadrivio_config import ConfigError
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import fatal, node_params, with_scenario

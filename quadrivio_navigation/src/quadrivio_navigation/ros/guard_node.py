@@ -44,7 +44,7 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_description.config import ConfigError, load_yaml, param, replace_nested
+from quadrivio_config import ConfigError, load_yaml, param, replace_nested
 from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher

@@ -34,7 +34,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario

@@ -48,7 +48,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_runtime.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
                                              with_scenario)
 from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish

@@ -22,7 +22,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from sensor_msgs.msg import Imu
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_description.frames import rotate
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher

@@ -18,7 +18,7 @@ from typing import Callable, Dict, Optional, Tuple
 import numpy as np
 import rospy
 
-from quadrivio_description.config import ConfigError, replace_nested
+from quadrivio_config import ConfigError, replace_nested
 from quadrivio_description.frames import matrix_from_quaternion
 from quadrivio_runtime.ros.params import fatal, run_seed
 
@@ -61,7 +61,7 @@ class StaticFrames:
 def site_frame():
     """The site's :class:`~quadrivio_description.geodesy.LocalFrame` from ``/site``
     (``config/site.yaml``'s when the parameter is not set)."""
-    from quadrivio_description.config import from_mapping
+    from quadrivio_config import from_mapping
     from quadrivio_description.site import SiteParams, load_site
 
     if rospy.has_param("/site"):

@@ -35,7 +35,7 @@ import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 from std_srvs.srv import Trigger, TriggerResponse
 
-from quadrivio_description.config import param
+from quadrivio_config import param
 from quadrivio_runtime.ros import diagnostics, init_node, lockstep
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import node_params, private_params, split_params

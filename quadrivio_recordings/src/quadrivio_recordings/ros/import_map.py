@@ -50,7 +50,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
-from quadrivio_description.config import ConfigError, load_yaml
+from quadrivio_config import ConfigError, load_yaml
 
 ROLES = ("gps", "imu", "mag", "state", "setpoint")
 UNITS = {"tesla": 1.0, "gauss": 1e-4, "microtesla": 1e-6, "nanotesla": 1e-9, "counts": None}

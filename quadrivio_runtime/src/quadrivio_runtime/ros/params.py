@@ -17,7 +17,7 @@ compat.checked()  # rospy's version checked and the mends applied before rospy's
 
 import rospy
 
-from quadrivio_description.config import ConfigError, from_mapping, replace_nested
+from quadrivio_config import ConfigError, from_mapping, replace_nested
 from quadrivio_description.site import SiteParams, default_site_file, load_site
 from quadrivio_description.vehicle import VehicleParams, default_vehicle_file, load_vehicle, with_overrides
 

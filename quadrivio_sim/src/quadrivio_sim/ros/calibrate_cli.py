@@ -35,7 +35,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 import yaml
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param, to_mapping
+from quadrivio_config import ConfigError, from_mapping, load_yaml, param, to_mapping
 from quadrivio_recordings.ros import import_map
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_recordings.ros.import_map import get_field

@@ -72,7 +72,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, Imu, JointState, LaserScan, MagneticField
 from std_srvs.srv import Trigger, TriggerResponse
 
-from quadrivio_description.config import ConfigError, from_mapping, load_yaml, param
+from quadrivio_config import ConfigError, from_mapping, load_yaml, param
 from quadrivio_runtime.ros import diagnostics, init_node
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import (fatal, node_params, private_params, run_seed, site_params,
