@@ -120,3 +120,20 @@ def test_the_stand_in_and_real_launch_share_no_node():
     assert not names & {n.namespace + n.name for n in real.nodes}
     assert real.params["/use_sim_time"].value is True
     assert {"/localization", "/follower", "/plc_client", "/gps/nmea_gps"} <= {n.namespace + n.name for n in real.nodes}
+
+
+@pytest.mark.parametrize("launch", ["sim.launch", "real.launch"])
+def test_the_guard_is_the_roscpp_node_and_guard_arg_picks_the_python_reference(launch):
+    import roslaunch.config
+    import rospkg
+
+    path = rospkg.RosPack().get_path("quadrivio") + "/launch/" + launch
+    extra = ["plc_host:=127.0.0.1"] if launch == "real.launch" else []
+
+    def guard_type(argv):
+        cfg = roslaunch.config.load_config_default([(path, extra + argv)], None, verbose=False)
+        (node,) = [n for n in cfg.nodes if n.name == "guard"]
+        return node.package, node.type
+
+    assert guard_type([]) == ("quadrivio_navigation", "guard_cpp")
+    assert guard_type(["guard:=guard"]) == ("quadrivio_navigation", "guard")
