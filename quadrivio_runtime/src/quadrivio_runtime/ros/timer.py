@@ -26,7 +26,7 @@ compat.checked()  # rospy's version checked and the mends applied before rospy's
 
 import rospy
 
-from quadrivio_description.guards import InputGuard
+from quadrivio_runtime.guards import InputGuard
 
 
 def guarded_timer(period: float, callback: Callable[[rospy.timer.TimerEvent], None], what: str,

@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from quadrivio_description.guards import InputGuard, finite
+from quadrivio_runtime.guards import InputGuard, finite
 
 
 def test_finite():
