@@ -43,7 +43,7 @@ namespace
 {
 constexpr double kMaxRange = 20.0;  // [m] returns beyond this cannot matter for the fields
 
-// Counts of rejected inputs by (input, reason), as quadrivio_description.guards.InputGuard
+// Counts of rejected inputs by (input, reason), as quadrivio_runtime.guards.InputGuard
 class InputGuard
 {
 public:
