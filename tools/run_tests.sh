@@ -48,7 +48,7 @@ fi
 
 if [ "$mode" = all ] || [ "$mode" = system ]; then
   printf '\n[test] system tests (pytest -m system: the stack through the user commands)\n'
-  if ! python3 -m pytest -q -m system; then
+  if ! python3 -m pytest -q -m system --durations=8; then  # the slowest: where make test's time goes
     failed+=("system tests")
   fi
 fi
