@@ -128,6 +128,7 @@ public:
       return;
     const g::Params& p = config_.params;
     inputs_ = InputGuard(p.max_future);
+    g::rpyMatrix(config_.imu_rpy[0], config_.imu_rpy[1], config_.imu_rpy[2], imu_R_);  // the mount: once
     reset();
     pub_sp_ = lockstep_.advertise<quadrivio_plc::Setpoint>("vehicle/setpoint/auto", 10);
     pub_status_ = lockstep_.advertise<GuardStatus>("guard/status", 20);
@@ -228,8 +229,7 @@ private:
     const auto& w = m->angular_velocity;
     if (!inputs_.check("imu/data", stamp, t, { a.x, a.y, a.z, w.x, w.y, w.z }))
       return;
-    double R[9];
-    g::rpyMatrix(config_.imu_rpy[0], config_.imu_rpy[1], config_.imu_rpy[2], R);
+    const double* R = imu_R_;
     const double f[3] = { R[0] * a.x + R[1] * a.y + R[2] * a.z, R[3] * a.x + R[4] * a.y + R[5] * a.z,
                           R[6] * a.x + R[7] * a.y + R[8] * a.z };
     const double r[3] = { R[0] * w.x + R[1] * w.y + R[2] * w.z, R[3] * w.x + R[4] * w.y + R[5] * w.z,
@@ -521,6 +521,7 @@ private:
   int last_action_ = 0;
   long ground_returns_ = 0;
   double last_now_ = 0.0, next_diag_ = 0.0;
+  double imu_R_[9] = { 1, 0, 0, 0, 1, 0, 0, 0, 1 };  // the IMU's mount in base_link
 };
 
 int main(int argc, char** argv)
