@@ -135,7 +135,7 @@ def field_planner():
 @pytest.mark.parametrize("kind", PLANNERS)
 def test_paths_are_collision_free_on_a_cluttered_field(field_planner, kind):
     for s, g in random_pairs(field_planner, 4, seed=5):
-        r = field_planner.plan(s, g, budget=1.0, planner=kind)
+        r = field_planner.plan(s, g, budget=4.0, planner=kind)  # a property, not a speed: room for a loaded machine
         assert r.ok, r.reason
         assert collision_free(field_planner, r.poses)
         assert r.goal_offset[0] < 0.15 and r.goal_offset[1] < math.radians(12)
@@ -264,5 +264,5 @@ def test_ompl_hands_over_to_the_lattice_in_the_rest_of_its_budget():
     r = handed.plan((-15.0, 0.0, 0.0), (35.0, 0.0, 0.0))
     assert r.ok, r.reason
     assert r.planner == "ompl+lattice" and "OMPL found no path in" in r.note and "the lattice planned" in r.note
-    assert collision_free(handed, r.poses) and r.planning_time < 8.0
+    assert collision_free(handed, r.poses) and r.planning_time < 12.0  # its 6 s budget, with room for a loaded machine
     assert ompl_alone.plan((-15.0, 0.0, 0.0), (35.0, 0.0, 0.0)).planner == "ompl"  # no hand-over when 0

@@ -41,7 +41,7 @@ from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
 
-from quadrivio_config import ConfigError, param
+from quadrivio_config import ConfigError, load_yaml, param
 from quadrivio_description.vehicle import VehicleParams
 
 from .costmap import Footprint
@@ -485,3 +485,33 @@ class Guard:
         d.action = SLOW if d.limit < abs(req_speed) - 1e-6 else CLEAR
         self.last = d
         return d
+
+
+@dataclass(frozen=True)
+class GuardNodeParams:
+    """The guard node's own parameters (``config/guard.yaml``, beside :class:`GuardParams`)."""
+    zone_file: str = param("", doc="YAML file with zone: [[x, y], ...] (map frame); empty: the parameters' zone")
+    base_frame: str = param("base_link")
+    request_timeout: float = param(0.25, lo=0.01, hi=10.0, unit="s",
+                                   doc="a request older than this is not repeated as a stop on a scan")
+    terrain_from_scenario: bool = param(True, doc="with a scenario whose terrain is known (a DEM), returns on it "
+                                                  "are the ground, not obstacles")
+    ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m", doc="a return this close to the DEM is the ground")
+
+
+def load_zone_file(path: str):
+    """The ``zone`` of a YAML file, checked (ConfigError naming the file and the problem)."""
+    data = load_yaml(path)
+    if not isinstance(data, dict) or "zone" not in data:
+        raise ConfigError(f"{path}: no 'zone: [[x, y], ...]' in it")
+    if data.get("frame_id", "map") != "map":
+        raise ConfigError(f"{path}: frame_id '{data['frame_id']}': the operating zone must be in the map frame")
+    try:
+        zone = tuple((float(x), float(y)) for x, y in data["zone"])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: 'zone' must be a list of [x, y] pairs: {exc}") from exc
+    try:
+        check_zone(zone)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+    return zone

@@ -39,6 +39,8 @@ import numpy as np
 
 from quadrivio_config import param
 
+from .guard import ScannerParams
+
 
 @dataclass(frozen=True)
 class LocalLayerParams:
@@ -173,6 +175,31 @@ def _shift(a: np.ndarray, dx: int, dy: int, fill) -> np.ndarray:
     return out
 
 
+def scanner_pose_3d(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], x: float, y: float, yaw: float,
+                    roll: float, pitch: float, wheel_radius: float, t_b, R_b) -> Tuple[np.ndarray, np.ndarray]:
+    """The scanner's 3D pose in the map (position (3,), rotation 3 x 3) from the vehicle's
+    planar pose, its roll and pitch and its mount (``t_b`` (3,), ``R_b`` 3 x 3 in
+    base_link): base_link stands ``wheel_radius`` above the DEM at (x, y)."""
+    from quadrivio_description.frames import rpy_matrix
+
+    R_map = np.array(rpy_matrix((roll, pitch, yaw)))
+    z0 = float(heights(np.array([x]), np.array([y]))[0]) + wheel_radius
+    return np.array([x, y, z0]) + R_map @ np.asarray(t_b, float), R_map @ np.asarray(R_b, float)
+
+
+def scan_ground(ground: Callable[[np.ndarray, np.ndarray], np.ndarray], ranges, angle_min: float,
+                angle_increment: float, range_min: float, range_max: float, max_range: float) -> np.ndarray:
+    """Which of a scan's rays returned from the ground (:func:`dem_ground`): only returns
+    inside the scanner's range (and ``max_range``) are tested."""
+    r = np.asarray(ranges, dtype=float)
+    bearings = angle_min + angle_increment * np.arange(len(r))
+    hit = np.isfinite(r) & (r >= range_min) & (r <= min(range_max, max_range))
+    out = np.zeros(len(r), dtype=bool)
+    if hit.any():
+        out[hit] = ground(bearings[hit], r[hit])
+    return out
+
+
 def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position, rotation: np.ndarray,
                tolerance: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """A ``ground(bearings, ranges)`` test for :meth:`LocalLayer.add_scan` from a DEM
@@ -185,3 +212,15 @@ def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position
         pts = pos[:, None] + rotation @ d * ranges
         return np.abs(pts[2] - heights(pts[0], pts[1])) <= tolerance
     return ground
+
+
+@dataclass(frozen=True)
+class LocalLayerNodeParams:
+    """The layer node's own parameters (``config/local_layer.yaml``, beside :class:`LocalLayerParams`)."""
+    scanners: Tuple[ScannerParams, ...] = param(
+        (ScannerParams("scan/front", "laser_front", "forward"), ScannerParams("scan/rear", "laser_rear", "reverse")))
+    publish_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="local_obstacles rate")
+    frame_id: str = param("map")
+    base_frame: str = param("base_link")
+    terrain_from_scenario: bool = param(True, doc="returns on the scenario's known terrain are the ground")
+    max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="a scan with no pose this fresh is dropped")

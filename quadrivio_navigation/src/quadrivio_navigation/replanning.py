@@ -12,9 +12,12 @@ Pure and ROS-free (the planner node calls it).
 
 from __future__ import annotations
 
-from typing import Optional, Tuple
+from dataclasses import dataclass
+from typing import Callable, List, Optional, Tuple
 
 import numpy as np
+
+from quadrivio_config import param
 
 from .fields import inside
 from .maps import OccupancyGrid as Grid
@@ -88,3 +91,59 @@ def merge_local(static: Grid, local: Grid, known: Optional[np.ndarray] = None, t
                 r, c = static.cell_of(float(x), float(y))
                 data[r, c] = 100
     return Grid(data, static.resolution, static.origin)
+
+
+def replan_start(poses: Optional[np.ndarray], current: Tuple[float, float, float], speed: float, lead_time: float,
+                 collides: Callable[[np.ndarray], List[int]]) -> Tuple[np.ndarray, Tuple[float, float, float]]:
+    """Where a replan starts: ``(the poses of the current path kept, the start pose)``.
+
+    Standing (below 0.2 m/s) or without a path: no poses kept, the vehicle's pose. Moving:
+    the vehicle drives on while the planner works, so the start is the pose of its current
+    path ``speed x lead_time`` ahead (``lead_time``: the planning time expected and a
+    margin), but 2 m short of the first pose that ``collides`` (indices of the colliding
+    poses of an array) on the merged map; the path up to there is kept."""
+    v = abs(speed)
+    if v < 0.2 or poses is None or len(poses) < 2:
+        return np.zeros((0, 3)), current
+    i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
+    seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    j = int(np.searchsorted(s, s[i0] + v * lead_time))
+    j = min(j, len(poses) - 1)
+    hits = collides(poses[i0:j + 1])
+    if hits:
+        j = i0 + max(0, hits[0] - int(round(2.0 / max(s[1] - s[0], 0.05))))  # 2 m short of it
+    if j <= i0 + 1:
+        return np.zeros((0, 3)), current
+    return poses[i0:j], tuple(float(a) for a in poses[j])
+
+
+def overtaken(prefix: np.ndarray, start, current: Optional[Tuple[float, float, float]]) -> bool:
+    """Whether the vehicle at ``current`` is past a replan's start: more than 1 m from it
+    while that start was where it stood, or beyond it along the kept ``prefix``."""
+    if current is None:
+        return False
+    if not len(prefix):
+        return bool(np.hypot(current[0] - start[0], current[1] - start[1]) > 1.0)
+    pts = np.vstack([prefix[:, :2], [start[:2]]])
+    return int(np.argmin(np.hypot(pts[:, 0] - current[0], pts[:, 1] - current[1]))) >= len(pts) - 1
+
+
+@dataclass(frozen=True)
+class PlannerNodeParams:
+    """The planner node's own parameters (``config/planner.yaml``, beside :class:`.planning.PlannerParams`)."""
+    map_file: str = param("", doc="plan on this map_server map instead of the map topic")
+    frame_id: str = param("map", doc="planning frame")
+    terrain_from_scenario: bool = param(True, doc="slope cost from the scenario's simulated terrain")
+    check_rate: float = param(2.0, lo=0.0, hi=50.0, unit="Hz",
+                              doc="how often the remaining path is checked against local_obstacles (0: never)")
+    check_horizon: float = param(25.0, lo=1.0, hi=1000.0, unit="m", doc="how far along the path it is checked")
+    retry: float = param(2.0, lo=0.1, hi=600.0, unit="s", doc="a blocked vehicle's planner tries again this often")
+    held_replan: float = param(8.0, lo=0.5, hi=600.0, unit="s",
+                               doc="replan from where the vehicle stands when the obstacle guard has held it this "
+                                   "long on a path that is not blocked (an obstacle beside a tight turn)")
+    replan_budget: float = param(5.0, lo=0.1, hi=600.0, unit="s",
+                                 doc="planning budget of a replan from a standing vehicle (it waits anyway)")
+    known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
+                                   doc="local marks this close to the map's obstacles are those obstacles (the marks "
+                                       "lie where the estimated pose puts them: the localization's error included)")

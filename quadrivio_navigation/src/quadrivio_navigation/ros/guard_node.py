@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
 
 import numpy as np
 import rospy
@@ -44,8 +43,8 @@ from nav_msgs.msg import Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_config import ConfigError, load_yaml, param, replace_nested
-from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
+from quadrivio_config import ConfigError, replace_nested
+from quadrivio_description.frames import rotate, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import fatal, node_params, private_params, split_params, vehicle_params, \
@@ -55,41 +54,16 @@ from quadrivio_plc.msg import Setpoint, VehicleState
 
 from ..attitude import Attitude
 from ..fields import ScanError, check_scan, scan_points
-from ..local_layer import dem_ground
-from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardParams, check_zone
+from ..local_layer import dem_ground, scan_ground, scanner_pose_3d
+from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \
+    load_zone_file
 from ..msg import GuardStatus
 from .site_inputs import StaticFrames, scenario_heightfield
 
 MAX_RANGE = 20.0  # [m] returns beyond this cannot matter for the fields (warning field at 8 m/s: ~16 m)
 
 
-@dataclass(frozen=True)
-class NodeParams:
-    zone_file: str = param("", doc="YAML file with zone: [[x, y], ...] (map frame); empty: the parameters' zone")
-    base_frame: str = param("base_link")
-    request_timeout: float = param(0.25, lo=0.01, hi=10.0, unit="s",
-                                   doc="a request older than this is not repeated as a stop on a scan")
-    terrain_from_scenario: bool = param(True, doc="with a scenario whose terrain is known (a DEM), returns on it "
-                                                  "are the ground, not obstacles")
-    ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m", doc="a return this close to the DEM is the ground")
-
-
-def load_zone_file(path: str):
-    """The ``zone`` of a YAML file, checked (ConfigError naming the file and the problem)."""
-    data = load_yaml(path)
-    if not isinstance(data, dict) or "zone" not in data:
-        raise ConfigError(f"{path}: no 'zone: [[x, y], ...]' in it")
-    if data.get("frame_id", "map") != "map":
-        raise ConfigError(f"{path}: frame_id '{data['frame_id']}': the operating zone must be in the map frame")
-    try:
-        zone = tuple((float(x), float(y)) for x, y in data["zone"])
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: 'zone' must be a list of [x, y] pairs: {exc}") from exc
-    try:
-        check_zone(zone)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}") from exc
-    return zone
+NodeParams = GuardNodeParams
 
 
 def guard_config(private: dict, source: str):
@@ -149,18 +123,10 @@ class GuardNode:
         if self.heights is None or pose is None or now - pose[0] > 0.5:
             return None
         _, x, y, yaw = pose
-        R_map = np.array(rpy_matrix((self.attitude.roll, self.attitude.pitch, yaw)))
-        z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
-        t_b = np.array([mount[0], mount[1], mount[4]])
-        ground = dem_ground(self.heights, np.array([x, y, z0]) + R_map @ t_b, R_map @ mount[3],
-                            self.node_params.ground_tolerance)
-        r = np.asarray(m.ranges, dtype=float)
-        bearings = m.angle_min + m.angle_increment * np.arange(len(r))
-        hit = np.isfinite(r) & (r >= m.range_min) & (r <= min(m.range_max, MAX_RANGE))
-        out = np.zeros(len(r), dtype=bool)
-        if hit.any():
-            out[hit] = ground(bearings[hit], r[hit])
-        return out
+        pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
+                                 self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3])
+        ground = dem_ground(self.heights, pos, R, self.node_params.ground_tolerance)
+        return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:

@@ -24,8 +24,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-from dataclasses import dataclass
-from typing import Tuple
 
 import numpy as np
 import rospy
@@ -34,8 +32,7 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_config import param
-from quadrivio_description.frames import rotate, rpy_matrix, yaw_from_quaternion
+from quadrivio_description.frames import rotate, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
@@ -43,20 +40,11 @@ from quadrivio_plc.msg import VehicleState
 
 from ..attitude import Attitude
 from ..fields import ScanError, check_scan
-from ..guard import ScannerParams
-from ..local_layer import LocalLayer, LocalLayerParams, dem_ground
+from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, dem_ground, scanner_pose_3d
 from .site_inputs import StaticFrames, scenario_terrain
 
 
-@dataclass(frozen=True)
-class NodeParams:
-    scanners: Tuple[ScannerParams, ...] = param(
-        (ScannerParams("scan/front", "laser_front", "forward"), ScannerParams("scan/rear", "laser_rear", "reverse")))
-    publish_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="local_obstacles rate")
-    frame_id: str = param("map")
-    base_frame: str = param("base_link")
-    terrain_from_scenario: bool = param(True, doc="returns on the scenario's known terrain are the ground")
-    max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="a scan with no pose this fresh is dropped")
+NodeParams = LocalLayerNodeParams
 
 
 class LocalLayerNode:
@@ -147,11 +135,9 @@ class LocalLayerNode:
         ranges = np.where(np.isfinite(ranges) & ((ranges < m.range_min) | (ranges > m.range_max)), np.nan, ranges)
         ground = None
         if self.heights is not None:
-            roll, pitch = self.attitude.roll, self.attitude.pitch
-            R_map = np.array(rpy_matrix((roll, pitch, yaw)))
-            z0 = float(self.heights(np.array([x]), np.array([y]))[0]) + self.vehicle.wheel_radius
-            pos = np.array([x, y, z0]) + R_map @ t_b
-            ground = dem_ground(self.heights, pos, R_map @ R_b, self.p.ground_tolerance)
+            pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
+                                     self.vehicle.wheel_radius, t_b, R_b)
+            ground = dem_ground(self.heights, pos, R, self.p.ground_tolerance)
         with self.lock:
             self.layer.add_scan(stamp, (sx, sy, heading), bearings, ranges, ground)
         self.update_ms.append(1e3 * (time.perf_counter() - t0))

@@ -38,7 +38,6 @@ import math
 import queue
 import threading
 import time
-from dataclasses import dataclass
 from typing import Optional, Tuple
 
 import numpy as np
@@ -48,7 +47,6 @@ from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
 from quadrivio_runtime.ros import init_node
-from quadrivio_config import param
 from quadrivio_runtime.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
                                              with_scenario)
 from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
@@ -56,29 +54,13 @@ from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult
-from ..replanning import blocked_reason, known_distance, merge_local
+from ..replanning import PlannerNodeParams, blocked_reason, known_distance, merge_local, overtaken, replan_start
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 from .site_inputs import scenario_terrain, site_frame
 
 
-@dataclass(frozen=True)
-class NodeParams:
-    map_file: str = param("", doc="plan on this map_server map instead of the map topic")
-    frame_id: str = param("map", doc="planning frame")
-    terrain_from_scenario: bool = param(True, doc="slope cost from the scenario's simulated terrain")
-    check_rate: float = param(2.0, lo=0.0, hi=50.0, unit="Hz",
-                              doc="how often the remaining path is checked against local_obstacles (0: never)")
-    check_horizon: float = param(25.0, lo=1.0, hi=1000.0, unit="m", doc="how far along the path it is checked")
-    retry: float = param(2.0, lo=0.1, hi=600.0, unit="s", doc="a blocked vehicle's planner tries again this often")
-    held_replan: float = param(8.0, lo=0.5, hi=600.0, unit="s",
-                               doc="replan from where the vehicle stands when the obstacle guard has held it this "
-                                   "long on a path that is not blocked (an obstacle beside a tight turn)")
-    replan_budget: float = param(5.0, lo=0.1, hi=600.0, unit="s",
-                                 doc="planning budget of a replan from a standing vehicle (it waits anyway)")
-    known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
-                                   doc="local marks this close to the map's obstacles are those obstacles (the marks "
-                                       "lie where the estimated pose puts them: the localization's error included)")
+NodeParams = PlannerNodeParams
 
 
 def grid_from_msg(m: OccupancyGrid) -> Grid:
@@ -299,36 +281,11 @@ class PlannerNode:
                       time.monotonic() - t, r.length, r.cusps)
 
     def _replan_start(self, planner: Planner):
-        """(poses of the current path kept, the replan's start): standing (or no path), the
-        vehicle's pose; moving, the pose of its current path ``speed x (planning time +
-        0.5 s)`` ahead, but short of the first pose that collides on the merged map."""
-        v = abs(self.speed)
-        poses = self.path_poses
-        if v < 0.2 or poses is None or len(poses) < 2:
-            return np.zeros((0, 3)), self.current
-        i0 = int(np.argmin(np.hypot(poses[:, 0] - self.current[0], poses[:, 1] - self.current[1])))
-        seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
-        s = np.concatenate([[0.0], np.cumsum(seg)])
-        ahead = v * (self.replan_time + 0.5)
-        j = int(np.searchsorted(s, s[i0] + ahead))
-        j = min(j, len(poses) - 1)
-        hits = planner.path_collides(poses[i0:j + 1])
-        if hits:
-            j = i0 + max(0, hits[0] - int(round(2.0 / max(s[1] - s[0], 0.05))))  # 2 m short of it
-        if j <= i0 + 1:
-            return np.zeros((0, 3)), self.current
-        return poses[i0:j], tuple(float(a) for a in poses[j])
+        """(poses of the current path kept, the replan's start): see :func:`replan_start`."""
+        return replan_start(self.path_poses, self.current, self.speed, self.replan_time + 0.5, planner.path_collides)
 
     def _overtaken(self, prefix: np.ndarray, start) -> bool:
-        """Whether the vehicle is now past the replan's start: more than 1 m from it while
-        that start was where it stood, or beyond it along the kept prefix."""
-        cur = self.current
-        if cur is None:
-            return False
-        if not len(prefix):
-            return math.hypot(cur[0] - start[0], cur[1] - start[1]) > 1.0
-        pts = np.vstack([prefix[:, :2], [start[:2]]])
-        return int(np.argmin(np.hypot(pts[:, 0] - cur[0], pts[:, 1] - cur[1]))) >= len(pts) - 1
+        return overtaken(prefix, start, self.current)
 
     def _blocked(self, reason: str, start: PoseStamped, r: Optional[PlanResult] = None) -> None:
         if self.blocked_since is None:
