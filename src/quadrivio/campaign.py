@@ -1,9 +1,12 @@
 """``rosrun quadrivio campaign SCENARIOS... --seeds N --out DIR``: scenarios x seeds, in parallel.
 
 Each run is either *offline* (default: :mod:`quadrivio.offline`, the simulator core, the
-sensor models and the smoother in one process, no ROS master, as fast as the CPU goes) or
-*closed loop* (``--closed-loop``: ``experiment`` per run, the whole stack on its own ROS
-master). Runs are tasks on Dask distributed: a local cluster of ``--workers`` processes
+sensor models and the smoother in one process, the follower on the ground truth: every
+estimator sees the same readings), *closed loop* (``--closed-loop``:
+:mod:`quadrivio.closed_loop`, the whole stack in one process, the follower on the
+estimate, as fast as a core goes; ``runs/<scenario>_s<seed>/`` holds its metrics.json and
+plots) or *closed loop through ROS* (``--closed-loop --ros``: ``experiment`` per run, the
+ROS stack on its own master, for what only ROS can show). Runs are tasks on Dask distributed: a local cluster of ``--workers`` processes
 by default, or the scheduler at ``--scheduler ADDRESS`` (``python3 -m distributed.cli.dask_scheduler``
 on one machine, ``python3 -m distributed.cli.dask_worker ADDRESS`` on each of the others, all with
 env.sh sourced: Debian's ``/usr/bin/dask-worker`` runs the system Python, without gtsam; see
@@ -103,7 +106,7 @@ def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> D
 
 
 def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, rtf: Optional[float]) -> Dict:
-    """One run through ``experiment`` (the whole stack on its own ROS master)."""
+    """One run through ``experiment`` (the whole stack on its own ROS master: ``--ros``)."""
     s = load_scenario(scenario_path)
     folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
     cmd = ["rosrun", "quadrivio", "experiment", scenario_path, "--seed", str(seed), "--out", folder]
@@ -117,13 +120,34 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
         raise CampaignError(f"experiment {s.name} seed {seed} failed (exit {p.returncode}): {tail}")
     with open(metrics) as f:
         m = json.load(f)
-    return {"scenario": s.name, "seed": seed, "end": "completed" if p.returncode == 0 else "not completed",
+    return _closed_loop_figures(s, seed, m, p.returncode == 0)
+
+
+def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
+    """One closed-loop run in this process (:mod:`quadrivio.closed_loop`; a Dask task)."""
+    from . import closed_loop
+
+    s = load_scenario(scenario_path)
+    folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
+    r = closed_loop.run(s, seed)
+    m = closed_loop.write_run(r, s, seed, folder)
+    done = m.get("completed")
+    if done is None or s.run.end == "duration":
+        done = r.outcome == "completed"
+    fig = _closed_loop_figures(s, seed, m, bool(done))
+    fig.update(sim_s=r.sim_s, cpu_s=r.cpu_s)
+    return fig
+
+
+def _closed_loop_figures(s, seed: int, m: Dict, completed: bool) -> Dict:
+    """A closed-loop run's figures for the table, from its metrics.json."""
+    return {"scenario": s.name, "seed": seed, "end": "completed" if completed else "not completed",
             "rmse_m": m.get("loc_rmse_after_10s_m", m.get("loc_rmse_m")), "gps_rmse_m": m.get("gps_rmse_m"),
             "max_error_m": m.get("loc_max_m"), "heading_rmse_deg": m.get("loc_heading_rmse_deg"),
-            "wall_s": m.get("wall_duration_s"),
+            "wall_s": m.get("wall_duration_s"), "sim_s": m.get("sim_duration_s"), "xte_rmse_m": m.get("xte_rmse_m"),
             "completed": None if m.get("completed") is None else float(bool(m.get("completed"))),
             **{k: m.get(k) for k in ("collisions", "min_clearance_m", "protective_stops", "false_stops",
-                                     "time_blocked_s")}}
+                                     "time_blocked_s", "goal_position_error_m")}}
 
 
 def flatten(fig: Dict) -> Dict:
@@ -223,8 +247,12 @@ def parse(argv):
     p.add_argument("--seeds", type=int, default=3, help="seeds per scenario: 0 .. N-1 (default 3)")
     p.add_argument("--first-seed", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--closed-loop", action="store_true", help="run each through experiment (the whole stack)")
-    p.add_argument("--rtf", type=float, default=None, help="closed loop: real-time factor (default: the scenario's)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="closed loop: the whole stack in one process per run (quadrivio.closed_loop)")
+    p.add_argument("--ros", action="store_true",
+                   help="with --closed-loop: each run through experiment instead (the ROS stack, a master each)")
+    p.add_argument("--rtf", type=float, default=None, help="--closed-loop --ros: real-time factor (default: the "
+                                                             "scenario's)")
     p.add_argument("--workers", type=int, default=None, help="local cluster processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, help="address of a Dask scheduler instead of a local cluster")
     p.add_argument("--settle", type=float, default=20.0, help="[s] error statistics start here (default 20)")
@@ -235,6 +263,11 @@ def parse(argv):
         p.error("--workers must be at least 1")
     if args.settle < 0 or not math.isfinite(args.settle):
         p.error("--settle must be a non-negative number of seconds")
+    if (args.ros or args.rtf is not None) and not args.closed_loop:
+        p.error("--ros and --rtf go with --closed-loop")
+    if args.rtf is not None and not args.ros:
+        p.error("--rtf is the ROS stack's real-time factor: it goes with --closed-loop --ros (in one process a run "
+                "goes as fast as its core)")
     if args.rtf is not None and not (0.0 <= args.rtf <= 100.0):
         p.error("--rtf must be within [0, 100]")
     return args
@@ -257,7 +290,7 @@ def main(argv=None) -> int:
         return 2
     os.makedirs(os.path.join(args.out, "runs"), exist_ok=True)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    mode = "closed loop" if args.closed_loop else "offline"
+    mode = ("closed loop (ROS)" if args.ros else "closed loop") if args.closed_loop else "offline"
     jobs, runs = [], []
     for s in scenarios:
         digest = _digest(s.path)
@@ -294,10 +327,14 @@ def main(argv=None) -> int:
                                    dashboard_address=None, silence_logs=40)
             client = Client(cluster)
         wall0 = time.monotonic()
+        new_sim = 0.0  # simulated seconds of the runs made now
         try:
             futures = {}
             for s, seed, digest in jobs:
-                if args.closed_loop:
+                if args.closed_loop and not args.ros:
+                    fut = client.submit(run_in_process, s.path, seed, os.path.abspath(args.out), args.settle,
+                                        pure=False)
+                elif args.closed_loop:
                     fut = client.submit(run_closed_loop, s.path, seed, os.path.abspath(args.out), args.settle,
                                         args.rtf, pure=False)
                 else:
@@ -315,10 +352,14 @@ def main(argv=None) -> int:
                 _atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
                               json.dumps(fig, indent=1, default=float).encode())
                 runs.append(fig)
+                new_sim += float(fig.get("sim_s") or 0.0)
                 elapsed = time.monotonic() - wall0
                 gps = fig.get("gps_rmse_m")
-                _log(f"{len(runs)}/{total} {s.name} seed {seed}: RMSE {fig['rmse_m']:.3f} m"
-                     + (f" (raw GPS {gps:.3f} m)" if gps else "") + f", {elapsed:.0f} s elapsed")
+                rmse = fig.get("rmse_m")
+                _log(f"{len(runs)}/{total} {s.name} seed {seed}: "
+                     + (f"RMSE {rmse:.3f} m" if rmse is not None else "no estimate")
+                     + (f" (raw GPS {gps:.3f} m)" if gps else "")
+                     + (f", {fig['end']}" if args.closed_loop else "") + f", {elapsed:.0f} s elapsed")
         except KeyboardInterrupt:
             _log("interrupted: the finished runs are kept; run the same command to resume")
             return 130
@@ -330,6 +371,11 @@ def main(argv=None) -> int:
     rows = table(runs, names)
     meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios}, "settle_s": args.settle,
             "failures": failures}
+    if jobs:
+        wall = time.monotonic() - wall0
+        meta.update(wall_s=wall, sim_s=new_sim, sim_s_per_wall_s=new_sim / wall if wall > 0 else None)
+        if args.closed_loop and new_sim:
+            _log(f"{new_sim:.0f} simulated s in {wall:.0f} wall s: {new_sim / wall:.1f} simulated s per wall s")
     write_tables(args.out, rows, runs, meta)
     if not args.closed_loop:
         for s in scenarios:

@@ -15,10 +15,10 @@ Between readings the previous reading is held; past the newest one it is extrapo
 
 from __future__ import annotations
 
+import bisect
 import math
-from collections import deque
 from dataclasses import dataclass
-from typing import Deque, Optional, Tuple
+from typing import List, Optional, Tuple
 
 from quadrivio_config import param
 
@@ -41,7 +41,8 @@ class Predictor:
     def __init__(self, wheelbase: float, ratio: float, max_delta: float) -> None:
         self.L, self.ratio, self.max_delta = wheelbase, ratio, max_delta
         self.speed_scale, self.handlebar_offset, self.steering_gain = 1.0, 0.0, 1.0
-        self.readings: Deque[Tuple[float, float, float]] = deque()  # (t, speed, handlebar)
+        self.readings: List[Tuple[float, float, float]] = []  # (t, speed, handlebar), in time order
+        self._times: List[float] = []  # their times (bisect)
         self.est = (0.0, 0.0, 0.0)
         self.est_t = 0.0
         self.has_estimate = False
@@ -64,8 +65,14 @@ class Predictor:
         if self.readings and t < self.readings[-1][0]:
             return False
         self.readings.append((t, speed, handlebar))
-        while len(self.readings) > 2 and self.readings[1][0] < t - self.KEEP:
-            self.readings.popleft()
+        self._times.append(t)
+        # the C++ core drops readings older than KEEP one by one; dropped here in batches (the
+        # predictions are the same: a prediction starts at the reading in force at the estimate)
+        if len(self._times) > 64 and self._times[32] < t - self.KEEP:
+            k = bisect.bisect_left(self._times, t - self.KEEP, 1, len(self._times) - 2) - 1
+            if k > 0:
+                del self.readings[:k]
+                del self._times[:k]
         return True
 
     def _delta(self, handlebar: float) -> float:
@@ -89,9 +96,8 @@ class Predictor:
         rd = self.readings
         if target <= t or not rd:
             return p, travelled
-        i = 0
-        while i + 1 < len(rd) and rd[i + 1][0] <= t:
-            i += 1
+        # the reading in force at t: the newest one not after t (or the first one)
+        i = max(0, bisect.bisect_right(self._times, t) - 1)
         while t < target:
             nxt = max(t, min(target, rd[i + 1][0])) if i + 1 < len(rd) else target
             p = self.step(p, rd[i][1], rd[i][2], nxt - t)

@@ -1,0 +1,657 @@
+"""The closed loop in one process: a scenario run without a ROS master, every part of the
+stack that acts on the vehicle composed in sim time, as fast as one core allows.
+
+What runs is what ``sim.launch`` runs, from the same files and the same scenario: the
+simulator core with the scenario's ``sim:`` section; each sensor adapter's noise and
+latency model (GPS, IMU, magnetometer, both lasers; one generator per adapter, seeded from
+the run's seed and the adapter's node name, as the adapters do); the PLC program with its
+link latency; the smoother (``localization.yaml``, the simulated magnetometer's
+calibration, the scenario's ``localization:``) at its rate; the predictor's model at its
+rate (:mod:`quadrivio_localization.predictor`, the port of the roscpp core); the path
+publisher; the planner with the local obstacle layer and replanning (scenarios with a map);
+the obstacle guard (the Python reference core, which the roscpp guard matches decision for
+decision); and the follower on the predicted pose, its requests through the guard to the
+PLC. Readings reach their consumers at their delivery time, in delivery order.
+
+Where it differs from the ROS stack, by design:
+
+* **No transport.** A message reaches its subscribers in the physics step it is sent
+  (ROS adds 0.1-1 ms on loopback, and a free-running stack's timers drift against the
+  simulator's steps); nodes run in a fixed order within a step (deliveries, smoother,
+  predictor, layer, planner, follower and guard).
+* **Planning takes no sim time.** The simulated world waits while the planner works (in
+  ROS the vehicle stands still during a first plan and drives on during a replan, which
+  starts from where it will be by then); the planner's time is still measured and
+  reported. The lattice stops at ``closed_loop.planner_expansions`` expansions instead of
+  its wall-clock budget, so that a run repeats.
+* **No PLCClient.** The guard's setpoints go to the PLC program directly, in AUTO from the
+  start; the PLCClient's own checks (its session, the operator's mode) are not exercised.
+
+The same seed gives the same run, array for array. ROS-free: used by ``campaign
+--closed-loop`` and the benchmarks.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Dict, List, Optional, Tuple
+
+import numpy as np
+
+from quadrivio_config import ConfigError, replace_nested
+
+from .metrics import RunData, Series
+from .offline import GPS_NODE, IMU_NODE, MAG_NODE, _sim_params, localizer_params, sensor_params
+from .scenario import Scenario, _defaults, _section
+from .scenario import vehicle as scenario_vehicle
+
+MAX_RANGE = 20.0  # [m] the guard's: returns beyond cannot matter for its fields
+# The lattice's bound in place of its wall-clock budget, so that a run repeats (a scenario's
+# planner: lattice: max_expansions overrides it): about 3 s of this machine's single core,
+# where the orchard's first solution needs about 20000
+PLANNER_EXPANSIONS = 30000
+
+
+@dataclass
+class Recorder:
+    """What ``experiment`` records in its bag, as rows, for :class:`quadrivio.metrics.RunData`."""
+    truth: List[tuple] = field(default_factory=list)  # t, x, y, yaw, vx, wz
+    estimate: List[tuple] = field(default_factory=list)
+    predicted: List[tuple] = field(default_factory=list)
+    gps: List[tuple] = field(default_factory=list)  # t, e, n, status
+    status: List[tuple] = field(default_factory=list)  # t, status, progress, cross_track
+    setpoint: List[tuple] = field(default_factory=list)  # t, speed, handlebar, brake (the guard's)
+    vehicle: List[tuple] = field(default_factory=list)  # t, speed, handlebar
+    calibration: List[tuple] = field(default_factory=list)
+    planner: List[tuple] = field(default_factory=list)  # t, state, planning_time, length
+    guard: List[tuple] = field(default_factory=list)
+    actors: List[tuple] = field(default_factory=list)
+    paths: List[tuple] = field(default_factory=list)  # (t, N x 3 poses)
+    local_marks: set = field(default_factory=set)
+    gps_decisions: List[tuple] = field(default_factory=list)
+    log: List[Tuple[float, str]] = field(default_factory=list)  # (t, line): what the nodes would have logged
+
+
+@dataclass
+class ClosedLoopResult:
+    run: RunData
+    outcome: str  # completed | aborted: ... | planner failed: ... | time limit
+    sim_s: float
+    wall_s: float
+    cpu_s: float  # this process's CPU time over the run
+    log: List[Tuple[float, str]]
+    counters: Dict[str, object]
+
+
+def _series(rows: List[tuple], names: Tuple[str, ...]) -> Series:
+    if not rows:
+        return Series.empty()
+    a = np.array(rows, dtype=float)
+    return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+
+
+def _config(cls, package: str, name: str, s: Scenario, section: Optional[str]):
+    """A node's parameters: its package's config file, then the scenario's section."""
+    import rospkg
+
+    p = _defaults(cls, f"{rospkg.RosPack().get_path(package)}/config/{name}")
+    over = _section(s.data, section) if section else None
+    return replace_nested(p, over, f"{s.path}: {section}") if over else p
+
+
+def sim_params(s: Scenario, seed: int):
+    """The simulator's parameters as ``sim_node`` builds them: ``sim.yaml``, the scenario's
+    ``sim:``, its ``actors:`` added, its ``map:`` (the world's trees and walls) and DEM
+    image resolved against the scenario's folder, the run's seed."""
+    from dataclasses import replace
+
+    from quadrivio_navigation.maps import resolve_map_file
+    from quadrivio_sim.actors import load_actors
+
+    p = _sim_params(s, seed)
+    if s.data.get("actors"):
+        p = replace(p, actors=p.actors + tuple(load_actors(s.data["actors"], f"{s.path}: actors")))
+    over = _section(s.data, "map")
+    world_map = replace_nested(p.map, over, f"{s.path}: map") if over else p.map
+    p = replace(p, map=replace(world_map, file=resolve_map_file(world_map.file, s.path)))
+    if p.terrain.image:
+        p = replace(p, terrain=replace(p.terrain, image=resolve_map_file(p.terrain.image, s.path)))
+    return p
+
+
+def _mount(vehicle, frame: str):
+    """A sensor frame's (translation (3,), rotation 3 x 3) in base_link (vehicle.yaml)."""
+    from quadrivio_description.frames import rpy_matrix
+
+    sensor = vehicle.sensors.get(frame)
+    if sensor is None:
+        raise ConfigError(f"vehicle.yaml has no sensor frame '{frame}' (the scanners' mounts)")
+    return np.asarray(sensor.xyz, float), np.array(rpy_matrix(tuple(sensor.rpy)))
+
+
+class _Delivery:
+    """Messages in flight: delivered in time order, ties in the order sent."""
+
+    def __init__(self) -> None:
+        self.q: List[tuple] = []
+        self.n = 0
+
+    def push(self, at: float, kind: str, data) -> None:
+        heapq.heappush(self.q, (at, self.n, kind, data))
+        self.n += 1
+
+    def due(self, t: float):
+        while self.q and self.q[0][0] <= t + 1e-9:
+            yield heapq.heappop(self.q)
+
+
+def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None]] = None,
+        max_duration: Optional[float] = None) -> ClosedLoopResult:
+    """Run scenario ``s`` with ``seed`` closed loop (see module docstring); ``progress(t,
+    t_end)`` every simulated second."""
+    from quadrivio_description.site import load_site
+    from quadrivio_description.urdf import build_urdf
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_description.frames import rpy_matrix
+    from quadrivio_localization.predictor import Predictor, PredictorParams, predicted
+    from quadrivio_localization.smoother import Localizer
+    from quadrivio_navigation.attitude import Attitude
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_navigation.fields import ScanError, check_scan, scan_points
+    from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route
+    from quadrivio_navigation.guard import FAULT, HOLD, STOP, Guard, GuardNodeParams, GuardParams, load_zone_file
+    from quadrivio_navigation.local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, dem_ground,
+                                                  scan_ground, scanner_pose_3d)
+    from quadrivio_navigation.maps import OccupancyGrid as Grid
+    from quadrivio_navigation.maps import load_map
+    from quadrivio_navigation.paths import PathParams, path_points
+    from quadrivio_navigation.planning import Planner, PlannerParams
+    from quadrivio_navigation.replanning import (PlannerNodeParams, blocked_reason, known_distance, merge_local,
+                                                 replan_start)
+    from quadrivio_navigation.rollover import RolloverParams
+    from quadrivio_plc import protocol
+    from quadrivio_plc.client import Multiplexer, PlcClientParams
+    from quadrivio_sim.actuators import load_actuators
+    from quadrivio_sim.adapter_params import (GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
+                                              MagAdapterParams)
+    from quadrivio_sim.noise import sensor_models
+    from quadrivio_sim.paths import package_file
+    from quadrivio_sim.simulator import Simulator
+    from quadrivio_sim.world import quat_to_rpy
+    from quadrivio_terrain.terrain import build_heightfield
+
+    wall0, cpu0 = time.perf_counter(), time.process_time()
+    v, site = scenario_vehicle(s, load_vehicle()), load_site()
+    frame = site.local_frame()
+    sp = sim_params(s, seed)
+    sim = Simulator(sp, v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
+    for name in ("image", "joint_states"):
+        if name in sim.enabled:
+            sim.enabled[name] = False
+    rec = Recorder()
+
+    def log(t: float, text: str) -> None:
+        rec.log.append((t, text))
+
+    # ---- sensor adapters: the same models, generators and names as sensor_adapters'
+    gps, gps_lat = sensor_models("gps", sensor_params(s, "gps", GpsAdapterParams, "gps.yaml"), seed, GPS_NODE)
+    imu, imu_lat = sensor_models("imu", sensor_params(s, "imu", ImuAdapterParams, "imu.yaml"), seed, IMU_NODE)
+    mag, mag_lat = sensor_models("mag", sensor_params(s, "mag", MagAdapterParams, "mag.yaml"), seed, MAG_NODE)
+    lasers = {}
+    for f in sp.sensors.lasers.frames:
+        lp_ = sensor_params(s, f, LaserAdapterParams, "laser.yaml")
+        lasers[f] = (lp_,) + tuple(sensor_models("laser", lp_, seed, "/" + f))
+
+    # ---- localization
+    lp = localizer_params(s)
+    loc = Localizer(lp, v, site)
+    pred_p = _config(PredictorParams, "quadrivio_localization", "predictor.yaml", s, None)
+    predictor = Predictor(v.wheelbase, v.steering.ratio, v.steering.max_angle * v.steering.ratio)
+    cal_period, last_cal = 1.0, -math.inf
+
+    # ---- the scenario's known terrain (the guard's and the layer's DEM, the planner's slopes)
+    hf = build_heightfield(sp.terrain, np.random.default_rng(seed), frame if sp.terrain.kind == "geotiff" else None)
+    heights = None if hf is None else hf.heights
+
+    # ---- the guard
+    gnode = _config(GuardNodeParams, "quadrivio_navigation", "guard.yaml", s, None)
+    gp = _config(GuardParams, "quadrivio_navigation", "guard.yaml", s, "guard")
+    if gnode.zone_file and not gp.zone:
+        gp = replace_nested(gp, {"zone": [list(z) for z in load_zone_file(gnode.zone_file)]}, "zone_file")
+    guard = Guard(gp, v)
+    g_att = Attitude(gp.slope_tau)
+    g_heights = heights if gnode.terrain_from_scenario else None
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rpy_matrix(
+        v.sensors["imu_link"].rpy if "imu_link" in v.sensors else (0.0, 0.0, 0.0))
+
+    def mount_imu(a):
+        """imu_link -> base_link (the guard's and the layer's rotate(imu_mount, .), its matrix once)."""
+        return (r00 * a[0] + r01 * a[1] + r02 * a[2], r10 * a[0] + r11 * a[1] + r12 * a[2],
+                r20 * a[0] + r21 * a[1] + r22 * a[2])
+    scanner_of = {sc.frame: sc for sc in gp.scanners}
+    request: Optional[tuple] = None  # (received, speed, handlebar, brake)
+    last_action = None
+
+    # ---- navigation
+    pathp = _config(PathParams, "quadrivio_navigation", "path.yaml", s, "path")
+    fp = _config(FollowerConfig, "quadrivio_navigation", "follower.yaml", s, "follower")
+    follower: Optional[PurePursuit] = None
+    grid = None
+    planner = None
+    pnode = _config(PlannerNodeParams, "quadrivio_navigation", "planner.yaml", s, None)
+    plp = _config(PlannerParams, "quadrivio_navigation", "planner.yaml", s, "planner")
+    plp = replace_nested(plp, {"lattice": {"max_expansions": plp.lattice.max_expansions or PLANNER_EXPANSIONS},
+                               "budget": 600.0}, "closed loop")
+    layer = None
+    if sp.map.file:
+        grid = load_map(sp.map.file, frame)
+        known = known_distance(grid)
+        planner = Planner(grid, v, plp, heights if pnode.terrain_from_scenario else None, RolloverParams())
+        lnode = _config(LocalLayerNodeParams, "quadrivio_navigation", "local_layer.yaml", s, None)
+        llp = _config(LocalLayerParams, "quadrivio_navigation", "local_layer.yaml", s, "local_layer")
+        layer = LocalLayer(llp)
+        l_att = Attitude()
+        l_heights = heights if lnode.terrain_from_scenario else None
+    goal = tuple(pathp.goal) if pathp.kind == "goal" else None
+    if goal is not None and planner is None:
+        raise ConfigError(f"{s.path}: path kind 'goal' needs a map (the map: section)")
+    path_poses: Optional[np.ndarray] = None
+    planner_state = 0  # PlannerStatus: IDLE, PLANNING, FOUND, FAILED, BLOCKED
+    planner_reason = ""
+    local_grid = None
+    held_since: Optional[float] = None
+    last_try = -math.inf
+    block_why = ""
+    plan_wall: List[float] = []
+    replans = 0
+
+    mounts = {f: _mount(v, f) for f in lasers}
+    pose = None  # the newest prediction: (stamp, x, y, yaw, speed, sd)
+    est_sd = 0.0
+    started = False
+    t_end = max_duration if max_duration is not None else s.run.max_duration
+    outcome = "time limit"
+    done_at: Optional[float] = None
+    follow_steps = max(1, int(round(1.0 / (fp.rate * sim.dt))))
+    loc_steps = max(1, int(round(1.0 / (lp.rate * sim.dt))))
+    pred_steps = max(1, int(round(1.0 / (pred_p.rate * sim.dt))))
+    layer_steps = max(1, int(round(1.0 / (2.0 * sim.dt))))
+    check_steps = max(1, int(round(1.0 / (pnode.check_rate * sim.dt)))) if pnode.check_rate > 0 else 0
+    inflight = _Delivery()
+    counters: Dict[str, object] = {"smoother_restarts": 0, "scans_rejected": 0, "guard_stops_sent_on_scan": 0}
+    # the PLCClient: its multiplexer (a stale autonomous setpoint becomes a stop) at its send rate, in AUTO
+    # from the start (experiment's initial_mode)
+    cp = _config(PlcClientParams, "quadrivio_plc", "plc_client.yaml", s, None)
+    mux = Multiplexer(cp.setpoint_timeout, cp.stop_brake)
+    client_steps = max(1, int(round(1.0 / (cp.send_rate * sim.dt))))
+    sim.plc.force_auto(0.0)
+
+    def new_route(poses: np.ndarray, t: float) -> None:
+        nonlocal follower
+        old = follower
+        speed = pose[4] if pose is not None and old is not None and old.status == FOLLOWING else 0.0
+        route = make_route(poses, fp.profile, fp.pure_pursuit.reverse_speed, v_start=speed)
+        last = (old.sp_speed, old.sp_handlebar, old.t_last) if old is not None and old.status == FOLLOWING else \
+            (0.0, 0.0, None)
+        follower = PurePursuit(fp.pure_pursuit, route, v, *last)
+        follower.set_limits(fp.profile.accel, fp.profile.decel)
+        rec.paths.append((t, np.asarray(poses)[:, :2].copy()))
+
+    def set_planner(t: float, state: int, reason: str, took: float = math.nan, length: float = math.nan) -> None:
+        nonlocal planner_state, planner_reason
+        planner_state, planner_reason = state, reason
+        rec.planner.append((t, state, took, length))
+
+    def plan(t: float, start, on, why: str = "") -> None:
+        """A first plan (``why`` empty) or a replan on the grid ``on``."""
+        nonlocal path_poses, last_try, block_why, held_since, replans
+        last_try = t
+        p = planner if not why else Planner(on, v, plp, heights if pnode.terrain_from_scenario else None,
+                                            RolloverParams())
+        prefix = np.zeros((0, 3))
+        if why:
+            block_why = why
+            occupied = p.check_pose(goal, "goal")
+            if occupied:
+                set_planner(t, 4, f"{why}; and the goal is blocked: {occupied}")
+                return
+            prefix, start = replan_start(path_poses, start, pose[4] if pose else 0.0, 0.5, p.path_collides)
+            log(t, f"planner: {why}: replanning from ({start[0]:.2f}, {start[1]:.2f})")
+        w0 = time.perf_counter()
+        r = p.plan(start, goal, None if not why else pnode.replan_budget)
+        plan_wall.append(time.perf_counter() - w0)
+        if not r.ok:
+            if why:
+                set_planner(t, 4, f"{why}; no other path: {r.reason}", r.planning_time)
+            else:
+                set_planner(t, 3, r.reason, r.planning_time)
+                log(t, f"planner: FAILED: {r.reason}")
+            return
+        poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
+        path_poses = poses
+        held_since = None
+        replans += bool(why)
+        set_planner(t, 2, f"replanned ({why})" if why else r.note, r.planning_time, r.length)
+        log(t, f"planner: {'replanned' if why else 'path'} of {r.length:.1f} m, {r.cusps} cusp(s), "
+               f"{r.expansions} expansions in {r.planning_time:.2f} s")
+        new_route(poses, t)
+
+    def on_first_estimate(t: float, e) -> None:
+        """The path publisher: the path from where the vehicle is, or the goal to the planner."""
+        nonlocal started
+        started = True
+        if goal is not None:
+            rec_goal[0] = goal
+            plan(t, (e.x, e.y, e.theta), grid)
+            return
+        th = e.theta
+        c, sn = math.cos(th), math.sin(th)
+        wps = [(e.x + c * x - sn * y, e.y + sn * x + c * y) for x, y in pathp.waypoints]
+        pts = path_points(pathp.kind, (e.x, e.y, th), pathp.figure_eight, wps, pathp.ds)
+        heading = np.arctan2(np.gradient(pts[:, 1]), np.gradient(pts[:, 0]))
+        new_route(np.column_stack([pts, heading]), t)
+
+    rec_goal = [None]
+
+    def guard_status(t: float, d, requested: float, handlebar: float) -> None:
+        st = guard.state
+        rec.guard.append((t, d.action, d.limit, d.free, d.protective, d.scan_stamp if math.isfinite(d.scan_stamp)
+                          else 0.0, d.direction, requested, 1.0 if d.field == "zone" else 0.0,
+                          st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan))
+        if d.action in (STOP, HOLD, FAULT) or d.limit < fp.pure_pursuit.min_speed:
+            nonlocal_held[0] = t + 0.3
+        held = d.action in (STOP, HOLD) or (d.limit < 0.05 and abs(requested) > 0.1)
+        if not held:
+            nonlocal_held[1] = None
+        elif nonlocal_held[1] is None:
+            nonlocal_held[1] = t
+
+    nonlocal_held = [-1.0, None]  # the follower's held_until, the planner's held_since
+
+    def send(t: float, speed: float, handlebar: float, brake: float) -> None:
+        """The guard's setpoint to the PLCClient, which forwards it at once in AUTO."""
+        mux.update(protocol.SOURCE_AUTO, t, speed, handlebar, brake)
+        rec.setpoint.append((t, speed, handlebar, brake))
+        plc_client(t)
+
+    def plc_client(t: float) -> None:
+        for fr in mux.frames(protocol.MODE_AUTO, t):
+            sim.plc.setpoint(fr.source, fr.speed, fr.handlebar, fr.brake, t)
+
+    def on_scan(t: float, frame_: str, smp, ranges) -> None:
+        nonlocal last_action
+        sc = scanner_of.get(frame_)
+        stamp = smp.stamp
+        try:
+            check_scan(len(ranges), smp.angle_min, smp.angle_min + smp.angle_increment * (len(ranges) - 1),
+                       smp.angle_increment, smp.range_min, smp.range_max)
+        except ScanError as exc:
+            counters["scans_rejected"] += 1
+            log(t, f"scan {frame_} rejected: {exc}")
+            return
+        t_b, R_b = mounts[frame_]
+        # the local layer (with a fresh pose)
+        if layer is not None and pose is not None and t - pose[0] <= 0.5:
+            _, x, y, yaw = pose[:4]
+            c, sn = math.cos(yaw), math.sin(yaw)
+            sx, sy = x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1]
+            heading = yaw + math.atan2(R_b[1, 0], R_b[0, 0])
+            bearings = smp.angle_min + smp.angle_increment * np.arange(len(ranges))
+            if R_b[2, 2] < 0.0:
+                bearings = -bearings
+            rr = np.asarray(ranges, dtype=float)
+            rr = np.where(np.isfinite(rr) & ((rr < smp.range_min) | (rr > smp.range_max)), np.nan, rr)
+            ground = None
+            if l_heights is not None:
+                pos3, R3 = scanner_pose_3d(l_heights, x, y, yaw, l_att.roll, l_att.pitch, v.wheel_radius, t_b, R_b)
+                ground = dem_ground(l_heights, pos3, R3, layer.p.ground_tolerance)
+            layer.add_scan(stamp, (sx, sy, heading), bearings, rr, ground)
+        if sc is None:
+            return
+        if t - stamp > gp.max_scan_age:
+            counters["scans_rejected"] += 1
+            return
+        rr = ranges
+        if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
+            _, x, y, yaw = pose[:4]
+            pos3, R3 = scanner_pose_3d(g_heights, x, y, yaw, g_att.roll, g_att.pitch, v.wheel_radius, t_b, R_b)
+            gr = scan_ground(dem_ground(g_heights, pos3, R3, gnode.ground_tolerance), ranges, smp.angle_min,
+                             smp.angle_increment, smp.range_min, smp.range_max, MAX_RANGE)
+            if gr.any():
+                rr = np.where(gr, np.inf, np.asarray(ranges, dtype=float))
+        yaw_b = math.atan2(R_b[1, 0], R_b[0, 0])
+        points = scan_points(rr, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
+                             (float(t_b[0]), float(t_b[1]), yaw_b), MAX_RANGE, R_b)
+        guard.on_scan(sc.topic, stamp, points, "")
+        fresh = request is not None and t - request[0] <= gnode.request_timeout
+        speed, hb, brake = (request[1], request[2], request[3]) if fresh else (0.0, 0.0, 0.0)
+        d = guard.decide(t, speed, hb)
+        stop_now = fresh and d.action in (STOP, FAULT) and last_action not in (STOP, FAULT)
+        out = guard.command(d, speed, hb, brake)
+        last_action = d.action
+        if stop_now:
+            counters["guard_stops_sent_on_scan"] += 1
+            send(t, out.speed, out.handlebar, out.brake)
+        guard_status(t, d, speed, hb)
+
+    def on_request(t: float, c) -> None:
+        nonlocal request, last_action
+        request = (t, c.speed, c.handlebar, c.brake)
+        d = guard.decide(t, c.speed, c.handlebar)
+        out = guard.command(d, c.speed, c.handlebar, c.brake)
+        before, last_action = last_action, d.action
+        send(t, out.speed, out.handlebar, out.brake)
+        if d.action != before:
+            guard_status(t, d, c.speed, c.handlebar)
+
+    while sim.t < t_end - 1e-9:
+        due = sim.step()
+        t = sim.t
+        for name, x in due:
+            if name == "ground_truth":
+                yaw = quat_to_rpy(x.orientation)[2]
+                c, sn = math.cos(yaw), math.sin(yaw)
+                rec.truth.append((x.stamp, x.position[0], x.position[1], yaw,
+                                  x.linear_velocity[0] * c + x.linear_velocity[1] * sn, x.angular_velocity[2]))
+            elif name == "plc_state":
+                inflight.push(t, "state", (x.plc_time, x.wheel_speed, x.handlebar))
+            elif name == "imu":
+                f, w = imu.apply(x.specific_force, x.angular_rate)
+                inflight.push(imu_lat.deliver_at(x.stamp), "imu", (x.stamp, *map(float, f), *map(float, w)))
+            elif name == "mag":
+                inflight.push(mag_lat.deliver_at(x.stamp), "mag", (x.stamp, *map(float, mag.apply(x.field))))
+            elif name == "gps":
+                r = gps.apply(x.stamp, x.position, x.velocity)
+                if r.position is None:
+                    data = (x.stamp, math.nan, math.nan, math.nan, math.nan, math.nan, r.status)
+                    rec.gps.append((x.stamp, math.nan, math.nan, r.status))
+                else:
+                    lat, lon, alt = frame.enu_to_lla(*r.position)
+                    data = (x.stamp, lat, lon, alt, r.variances[0], r.variances[1], r.status)
+                    rec.gps.append((x.stamp, r.position[0], r.position[1], r.status))
+                inflight.push(gps_lat.deliver_at(x.stamp), "gps", data)
+            elif name == "scan":
+                lp_, noise, lat_ = lasers[x.frame]
+                if lp_.noise.is_silent(x.stamp):
+                    continue
+                ranges = noise.apply(x.ranges, x.range_min, x.range_max)
+                inflight.push(lat_.deliver_at(x.stamp), "scan", (x.frame, x, ranges))
+            elif name == "actors":
+                rec.actors.append((t, [(a.name, a.kind, a.shape, a.x, a.y, a.yaw, a.size[0], a.size[1]) for a in x]))
+        for _, _, kind, data in inflight.due(t):
+            if kind == "state":
+                st, ws, hb = data
+                loc.add_vehicle_state(st, ws, hb)
+                predictor.add_reading(st, ws, hb)
+                guard.on_state(st, ws, hb)
+                g_att.add_speed(st, ws)
+                if layer is not None:
+                    l_att.add_speed(st, ws)
+                rec.vehicle.append((st, ws, hb))
+            elif kind == "imu":
+                loc.add_imu(data[0], data[1:4], data[4:7])
+                fi, wi = mount_imu(data[1:4]), mount_imu(data[4:7])
+                g_att.add_imu(data[0], fi, wi)
+                guard.on_pitch(data[0], g_att.pitch)
+                if layer is not None:
+                    l_att.add_imu(data[0], fi, wi)
+            elif kind == "mag":
+                loc.add_mag(data[0], data[1:4])
+            elif kind == "gps":
+                loc.add_gps(*data)
+            else:
+                on_scan(t, *data)
+        steps = sim.steps
+        if steps % loc_steps == 0:
+            try:
+                e = loc.update(t)
+            except RuntimeError as exc:
+                log(t, f"smoother update failed ({str(exc).strip().splitlines()[0]}): restarted")
+                counters["smoother_restarts"] += 1
+                loc = Localizer(lp, v, site)
+                e = None
+            for dec in loc.pop_gps_decisions():
+                rec.gps_decisions.append(dec)
+            for ev in loc.pop_events():
+                log(t, f"localization: {ev}")
+            if e is not None:
+                rec.estimate.append((e.stamp, e.x, e.y, e.theta, e.speed, e.yaw_rate))
+                predictor.set_estimate(e.stamp, e.x, e.y, e.theta)
+                est_sd = math.sqrt(max(e.covariance[0, 0], e.covariance[1, 1], 0.0))
+                if t - last_cal >= cal_period:
+                    last_cal = t
+                    cal = e.calibration
+                    predictor.set_calibration(cal["wheel_speed_scale"], cal["handlebar_offset"], cal["steering_gain"])
+                    sig = loc.calibration_sigma()
+                    rec.calibration.append((e.stamp, cal["wheel_speed_scale"], cal["handlebar_offset"],
+                                            cal["steering_gain"], cal.get("gyro_bias", math.nan),
+                                            cal.get("mag_hard_iron_x", math.nan), cal.get("mag_hard_iron_y", math.nan),
+                                            *[sig.get(k, math.nan) for k in ("wheel_speed_scale", "handlebar_offset",
+                                                                              "steering_gain", "gyro_bias",
+                                                                              "mag_hard_iron_x", "mag_hard_iron_y")]))
+                if not started:
+                    on_first_estimate(t, e)
+        if steps % pred_steps == 0:
+            stamp, ppose, twist, _why = predicted(predictor, pred_p, t)
+            if stamp is not None:
+                pose = (stamp, ppose[0], ppose[1], ppose[2], twist[0], est_sd)
+                rec.predicted.append((stamp, ppose[0], ppose[1], ppose[2], twist[0], twist[1]))
+                guard.on_pose(stamp, ppose[0], ppose[1], ppose[2], est_sd)
+        if layer is not None and steps % layer_steps == 0 and layer.placed:
+            vals = layer.grid_values()
+            local_grid = Grid(vals.copy(), layer.p.resolution, (layer.origin[0], layer.origin[1], 0.0))
+            rows_, cols_ = np.nonzero(vals >= 100)
+            if len(rows_):
+                r_ = layer.p.resolution
+                rec.local_marks.update(zip(np.round(layer.origin[0] + (cols_ + 0.5) * r_, 1),
+                                           np.round(layer.origin[1] + (rows_ + 0.5) * r_, 1)))
+        if check_steps and planner is not None and goal is not None and local_grid is not None and pose is not None \
+                and steps % check_steps == 0:
+            cur = pose[1:4]
+            merged = None
+            if planner_state == 4:
+                if t - last_try >= pnode.retry:
+                    merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
+                    plan(t, cur, merged, block_why)
+            elif planner_state == 2 and path_poses is not None:
+                why = blocked_reason(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
+                                     known, pnode.known_tolerance)
+                hs = nonlocal_held[1]
+                if not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry:
+                    why = f"the obstacle guard has held the vehicle for {t - hs:.0f} s"
+                if why:
+                    merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
+                    plan(t, cur, merged, why)
+        if steps % follow_steps == 0 and follower is not None and pose is not None:
+            age = max(0.0, t - pose[0])
+            cmd = follower.update(pose[1], pose[2], pose[3], pose[4], pose_age=age, t=t,
+                                  held=t <= nonlocal_held[0])
+            rec.status.append((t, cmd.status, cmd.progress, cmd.cross_track))
+            on_request(t, cmd)
+            if cmd.status in (DONE, ABORTED) and done_at is None and s.run.end == "path_done":
+                done_at = t
+                outcome = "completed" if cmd.status == DONE else f"aborted: {cmd.reason}"
+        if steps % client_steps == 0:
+            plc_client(t)
+        if planner_state == 3 and s.run.end == "path_done" and (follower is None or follower.status != FOLLOWING):
+            outcome = f"planner failed: {planner_reason}"
+            break
+        if progress is not None and steps % 100 == 0:
+            progress(t, t_end)
+        if done_at is not None:
+            break
+    if done_at is None and s.run.end == "duration":
+        outcome = "completed"
+    sim_s = sim.t
+    contacts = [(c.stamp, c.body, c.kind, c.speed) for c in sim.contacts]
+    sim.close()
+    counters.update({"replans": replans, "plans": len(plan_wall),
+                     "plan_wall_s_max": max(plan_wall) if plan_wall else None})
+    pose_cols = ("x", "y", "yaw", "vx", "wz")
+    cal_names = ("wheel_speed_scale", "handlebar_offset", "steering_gain", "gyro_bias", "mag_hard_iron_x",
+                 "mag_hard_iron_y")
+    paths = rec.paths
+    run_data = RunData(
+        ground_truth=_series(rec.truth, pose_cols),
+        estimate=_series(rec.estimate, pose_cols),
+        predicted=_series(rec.predicted, pose_cols),
+        gps=_series(rec.gps, ("e", "n", "status")),
+        gps_decisions=rec.gps_decisions,
+        path=paths[-1][1] if paths else None,
+        status=_series(rec.status, ("status", "progress", "cross_track")),
+        lever=tuple(v.sensors["gps_link"].xyz[:2]),
+        setpoint=_series(rec.setpoint, ("speed", "handlebar", "brake")),
+        vehicle=_series(rec.vehicle, ("speed", "handlebar")),
+        calibration=_series(rec.calibration, cal_names + tuple(n + "_sigma" for n in cal_names)),
+        goal=rec_goal[0],
+        map=grid,
+        planner=_series(rec.planner, ("state", "planning_time", "length")),
+        path_poses=path_poses,
+        footprint=Footprint.from_vehicle(v) if grid is not None else None,
+        guard=_series(rec.guard, ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested",
+                                  "zone", "measured", "handlebar_requested", "handlebar_measured")),
+        actors=rec.actors,
+        paths=paths,
+        local_marks=np.array(sorted(rec.local_marks)) if rec.local_marks else np.zeros((0, 2)),
+        contacts=contacts if (rec.actors or grid is not None) else None,
+    )
+    return ClosedLoopResult(run_data, outcome, sim_s, time.perf_counter() - wall0, time.process_time() - cpu0,
+                            rec.log, counters)
+
+
+def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None) -> Dict[str, object]:
+    """``out/metrics.json`` (the keys ``experiment`` writes, and this process's CPU), the plots,
+    ``run_info.json`` and ``log.txt`` of a run; each file complete or absent."""
+    import datetime as dt
+    import json
+    import os
+
+    from quadrivio_description.vehicle import load_vehicle
+
+    from . import metrics as metrics_mod
+    from .plots import all_plots
+
+    v = vehicle if vehicle is not None else scenario_vehicle(s, load_vehicle())
+    m = metrics_mod.compute(r.run, s.name, seed, r.wall_s, v)
+    m.update({"runner": "in_process", "outcome": r.outcome, "cpu_s": r.cpu_s,
+              "sim_s_per_cpu_s": r.sim_s / r.cpu_s if r.cpu_s > 0 else None})
+    os.makedirs(out, exist_ok=True)
+
+    def put(name: str, text: str) -> None:
+        tmp = os.path.join(out, f".{name}.tmp")
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, os.path.join(out, name))
+
+    put("metrics.json", json.dumps(m, indent=2, default=float) + "\n")
+    put("run_info.json", json.dumps({"scenario": s.name, "scenario_file": s.path, "seed": seed, "runner": "in_process",
+                                     "outcome": r.outcome, "sim_duration_s": r.sim_s, "wall_duration_s": r.wall_s,
+                                     "cpu_s": r.cpu_s, "counters": r.counters,
+                                     "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")},
+                                    indent=2, default=float) + "\n")
+    put("log.txt", "".join(f"{t:9.3f} {line}\n" for t, line in r.log))
+    all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")
+    return m
