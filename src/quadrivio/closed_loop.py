@@ -181,7 +181,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_sim.paths import package_file
     from quadrivio_sim.simulator import Simulator
     from quadrivio_sim.world import quat_to_rpy
-    from quadrivio_terrain.terrain import build_heightfield
+    from quadrivio_terrain.terrain import known_heightfield
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
     v, site = scenario_vehicle(s, load_vehicle()), load_site()
@@ -213,7 +213,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     cal_period, last_cal = 1.0, -math.inf
 
     # ---- the scenario's known terrain (the guard's and the layer's DEM, the planner's slopes)
-    hf = build_heightfield(sp.terrain, np.random.default_rng(seed), frame if sp.terrain.kind == "geotiff" else None)
+    hf = known_heightfield(sp.terrain, np.random.default_rng(seed), frame if sp.terrain.kind == "geotiff" else None)
     heights = None if hf is None else hf.heights
 
     # ---- the guard

@@ -158,6 +158,16 @@ def _read_pgm(path: str) -> np.ndarray:
     return data.astype(float) / maxval
 
 
+def known_heightfield(p: TerrainParams, rng: np.random.Generator, frame=None) -> Heightfield:
+    """The terrain as the stack knows it (the guard's and the obstacle layer's DEM, the
+    planner's slopes): :func:`build_heightfield`'s, and for flat ground a level grid at
+    z = 0, known as well: a vehicle braking hard pitches its scanners' plane into it (4 deg
+    at 1.5 m/s puts the ground 8 m ahead in a scan), and those returns are the ground."""
+    if p.kind == "flat":
+        return Heightfield(np.zeros((2, 2)), max(p.size, 1.0))
+    return build_heightfield(p, rng, frame)
+
+
 def build_heightfield(p: TerrainParams, rng: np.random.Generator, frame=None) -> Optional[Heightfield]:
     """The heightfield for ``p``; ``None`` for flat ground. ``frame``: the site's
     :class:`~quadrivio_description.geodesy.LocalFrame` for kind=geotiff (default: the

@@ -6,9 +6,10 @@ surroundings: the scanners' mounts from ``/tf_static`` and the scenario's known 
   on it has no mount: the guard stops for it, the layer drops its scans.
 * :func:`site_frame`: the map frame's datum from ``/site`` (the launch files load it), which
   places georeferenced maps and DEMs (GeoTIFFs).
-* :func:`scenario_terrain` builds the heights of a scenario whose ``sim: terrain:`` is
-  procedural or a DEM (the same seed as the simulator's), or None: with it, the planner
-  costs slopes and the guard and the layer take returns on it for the ground.
+* :func:`scenario_terrain` builds the heights of a scenario's ``sim: terrain:`` (flat, procedural
+  or a DEM, the same seed as the simulator's), or None without a scenario (the real vehicle
+  without a survey): with it, the planner costs slopes and the guard and the layer take
+  returns on it for the ground.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ def scenario_heightfield(who: str, enabled: bool = True):
     key = "/scenario/sim/terrain"
     if not (enabled and rospy.has_param(key)):
         return None
-    from quadrivio_terrain.terrain import TerrainParams, build_heightfield
+    from quadrivio_terrain.terrain import TerrainParams, known_heightfield
 
     try:
         tp = replace_nested(TerrainParams(), rospy.get_param(key), key)
@@ -93,7 +94,7 @@ def scenario_heightfield(who: str, enabled: bool = True):
             from ..maps import resolve_map_file
 
             tp = replace(tp, image=resolve_map_file(tp.image, rospy.get_param("/scenario/source", "")))
-        hf = build_heightfield(tp, np.random.default_rng(run_seed()), site_frame() if tp.kind == "geotiff" else None)
+        hf = known_heightfield(tp, np.random.default_rng(run_seed()), site_frame() if tp.kind == "geotiff" else None)
     except ConfigError as exc:
         fatal(f"bad scenario terrain: {exc}")
     if hf is None:
