@@ -322,6 +322,9 @@ def main(argv=None) -> int:
                       f"({exc}); nothing run", file=sys.stderr)
                 return 2
         else:
+            # the runs are the parallelism: one BLAS thread per worker (numpy's OpenBLAS spins a thread
+            # per core after each call: twice a run's CPU for nothing, see launch/stack.launch)
+            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             workers = args.workers or os.cpu_count() or 1
             cluster = LocalCluster(n_workers=min(workers, len(jobs)), threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=40)

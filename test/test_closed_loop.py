@@ -1,0 +1,66 @@
+"""The closed loop in one process (quadrivio.closed_loop): the same seed gives the same run,
+array for array; the guard on its path stops the vehicle for a person; what it cannot run
+is refused with the reason. (Its parity with the ROS stack: test_closed_loop_parity.py.)"""
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from quadrivio import closed_loop, metrics
+from quadrivio.scenario import load_scenario, resolve
+from quadrivio.scenario import vehicle as scenario_vehicle
+from quadrivio_config import ConfigError
+
+STREAMS = ("ground_truth", "estimate", "predicted", "setpoint", "vehicle", "status", "guard", "calibration")
+
+
+def _same(a, b) -> bool:
+    return len(a) == len(b) and np.array_equal(a.t, b.t) and \
+        all(np.array_equal(a[k], b[k], equal_nan=True) for k in a.cols)
+
+
+def test_the_same_seed_gives_the_same_run_array_for_array():
+    s = load_scenario("figure_eight")
+    a, b = closed_loop.run(s, 4, max_duration=12.0), closed_loop.run(s, 4, max_duration=12.0)
+    for name in STREAMS:
+        assert _same(getattr(a.run, name), getattr(b.run, name)), name
+    assert len(a.run.setpoint) > 500 and float(np.max(a.run.vehicle["speed"])) > 1.0  # it drove
+    c = closed_loop.run(s, 5, max_duration=12.0)
+    assert not _same(a.run.estimate, c.run.estimate)  # another seed, other readings
+
+
+def test_the_guard_stops_the_vehicle_short_of_a_person(tmp_path):
+    with open(resolve("person_on_path")) as f:
+        data = yaml.safe_load(f)
+    data["actors"][0]["start_time"] = 1000.0  # the person stays
+    data["name"] = "person_stays"
+    path = tmp_path / "person_stays.yaml"
+    path.write_text(yaml.safe_dump(data))
+    s = load_scenario(str(path))
+    r = closed_loop.run(s, 1, max_duration=25.0)
+    m = metrics.compute(r.run, s.name, 1, r.wall_s, scenario_vehicle(s))
+    assert m["collisions"] == 0 and m["min_clearance_m"] >= 0.3, m
+    assert m["time_blocked_s"] > 5.0  # held in front of the person, not driven around or through
+    speed = r.run.ground_truth["vx"][r.run.ground_truth.t > 20.0]
+    assert np.all(np.abs(speed) < 0.1)
+
+
+def test_a_goal_without_a_map_is_refused(tmp_path):
+    data = {"name": "goal_no_map", "path": {"kind": "goal", "goal": [10.0, 0.0, 0.0]},
+            "sim": {"terrain": {"kind": "flat"}}}
+    path = tmp_path / "goal_no_map.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="needs a map"):
+        closed_loop.run(load_scenario(str(path)), 0, max_duration=1.0)
+
+
+def test_write_run_writes_the_experiment_keys_and_plots(tmp_path):
+    s = load_scenario("figure_eight")
+    r = closed_loop.run(s, 0, max_duration=8.0)
+    m = closed_loop.write_run(r, s, 0, str(tmp_path))
+    for key in metrics.CONTRACT_KEYS:
+        assert key in m
+    assert m["runner"] == "in_process" and m["sim_s_per_cpu_s"] > 0
+    assert {"metrics.json", "run_info.json", "log.txt", "trajectory.png"} <= set(os.listdir(tmp_path))
+    assert not [f for f in os.listdir(tmp_path) if f.startswith(".")]  # nothing half-written left
