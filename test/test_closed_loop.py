@@ -64,3 +64,15 @@ def test_write_run_writes_the_experiment_keys_and_plots(tmp_path):
     assert m["runner"] == "in_process" and m["sim_s_per_cpu_s"] > 0
     assert {"metrics.json", "run_info.json", "log.txt", "trajectory.png"} <= set(os.listdir(tmp_path))
     assert not [f for f in os.listdir(tmp_path) if f.startswith(".")]  # nothing half-written left
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--ros"], "--ros and --rtf go with --closed-loop"),
+    (["--closed-loop", "--rtf", "2"], "--closed-loop --ros"),
+])
+def test_campaign_refuses_options_that_do_not_go_together(argv, message, capsys):
+    from quadrivio import campaign
+
+    with pytest.raises(SystemExit):
+        campaign.parse(["figure_eight", "--out", "x"] + argv)
+    assert message in capsys.readouterr().err

@@ -192,16 +192,16 @@ def test_an_excitation_run_calibrates_back_to_the_simulators_loops(tmp_path):
     assert h["replay_rms"] < 0.01 and s["replay_rms"] < 0.1
 
 
-def test_a_closed_loop_campaign_runs_the_whole_stack_per_run(tmp_path):
-    """`campaign --closed-loop`: each run is an `experiment` (the stack on its own master),
+def test_a_closed_loop_campaign_through_ros_runs_the_whole_stack_per_run(tmp_path):
+    """`campaign --closed-loop --ros`: each run is an `experiment` (the stack on its own master),
     its metrics in the table, its folder (bag, metrics.json, plots) kept under runs/."""
     path = short_scenario(tmp_path, max_duration=25.0)
     out = tmp_path / "out"
-    r = subprocess.run(["rosrun", "quadrivio", "campaign", path, "--closed-loop", "--seeds", "1", "--rtf", "2",
-                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    r = subprocess.run(["rosrun", "quadrivio", "campaign", path, "--closed-loop", "--ros", "--seeds", "1", "--rtf",
+                        "2", "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     result = json.loads((out / "campaign.json").read_text())
-    assert result["meta"]["mode"] == "closed loop" and result["meta"]["failures"] == []
+    assert result["meta"]["mode"] == "closed loop (ROS)" and result["meta"]["failures"] == []
     (run,) = result["runs"]
     assert run["scenario"] == "short_rtk" and run["seed"] == 0 and run["end"] == "completed"  # its 25 s
     assert 0.0 < run["rmse_m"] < 1.0 and 0.0 < run["gps_rmse_m"] < 1.0
@@ -209,6 +209,7 @@ def test_a_closed_loop_campaign_runs_the_whole_stack_per_run(tmp_path):
     m = json.loads((folder / "metrics.json").read_text())
     assert m["seed"] == 0 and 20.0 < m["sim_duration_s"] < 30.0
     assert "| short_rtk | 1 |" in (out / "campaign.md").read_text()
+    assert (folder / "run.bag").exists()
 
 
 def test_real_launch_against_the_stand_in_is_sim_launch(figure_eight, tmp_path):
