@@ -262,7 +262,6 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     planner_state = 0  # PlannerStatus: IDLE, PLANNING, FOUND, FAILED, BLOCKED
     planner_reason = ""
     local_grid = None
-    held_since: Optional[float] = None
     last_try = -math.inf
     block_why = ""
     plan_wall: List[float] = []
@@ -302,12 +301,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
 
     def set_planner(t: float, state: int, reason: str, took: float = math.nan, length: float = math.nan) -> None:
         nonlocal planner_state, planner_reason
+        if state == 4 and reason != planner_reason:
+            log(t, f"planner: BLOCKED: {reason}")
         planner_state, planner_reason = state, reason
         rec.planner.append((t, state, took, length))
 
     def plan(t: float, start, on, why: str = "") -> None:
         """A first plan (``why`` empty) or a replan on the grid ``on``."""
-        nonlocal path_poses, last_try, block_why, held_since, replans
+        nonlocal path_poses, last_try, block_why, replans
         last_try = t
         p = planner if not why else Planner(on, v, plp, heights if pnode.terrain_from_scenario else None,
                                             RolloverParams())
@@ -321,7 +322,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             prefix, start = replan_start(path_poses, start, pose[4] if pose else 0.0, 0.5, p.path_collides)
             log(t, f"planner: {why}: replanning from ({start[0]:.2f}, {start[1]:.2f})")
         w0 = time.perf_counter()
-        r = p.plan(start, goal, None if not why else pnode.replan_budget)
+        r = p.plan(start, goal)  # bounded by expansions, whatever ~replan_budget says: a run repeats
         plan_wall.append(time.perf_counter() - w0)
         if not r.ok:
             if why:
@@ -332,7 +333,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             return
         poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
         path_poses = poses
-        held_since = None
+        guard_held[1] = None  # held since: the new path is followed from here
         replans += bool(why)
         set_planner(t, 2, f"replanned ({why})" if why else r.note, r.planning_time, r.length)
         log(t, f"planner: {'replanned' if why else 'path'} of {r.length:.1f} m, {r.cusps} cusp(s), "
@@ -362,14 +363,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                           else 0.0, d.direction, requested, 1.0 if d.field == "zone" else 0.0,
                           st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan))
         if d.action in (STOP, HOLD, FAULT) or d.limit < fp.pure_pursuit.min_speed:
-            nonlocal_held[0] = t + 0.3
+            guard_held[0] = t + 0.3
         held = d.action in (STOP, HOLD) or (d.limit < 0.05 and abs(requested) > 0.1)
         if not held:
-            nonlocal_held[1] = None
-        elif nonlocal_held[1] is None:
-            nonlocal_held[1] = t
+            guard_held[1] = None
+        elif guard_held[1] is None:
+            guard_held[1] = t
 
-    nonlocal_held = [-1.0, None]  # the follower's held_until, the planner's held_since
+    guard_held = [-1.0, None]  # the follower's held_until, the planner's held_since
 
     def send(t: float, speed: float, handlebar: float, brake: float) -> None:
         """The guard's setpoint to the PLCClient, which forwards it at once in AUTO."""
@@ -559,7 +560,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             elif planner_state == 2 and path_poses is not None:
                 why = blocked_reason(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
                                      known, pnode.known_tolerance)
-                hs = nonlocal_held[1]
+                hs = guard_held[1]
                 if not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry:
                     why = f"the obstacle guard has held the vehicle for {t - hs:.0f} s"
                 if why:
@@ -568,7 +569,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if steps % follow_steps == 0 and follower is not None and pose is not None:
             age = max(0.0, t - pose[0])
             cmd = follower.update(pose[1], pose[2], pose[3], pose[4], pose_age=age, t=t,
-                                  held=t <= nonlocal_held[0])
+                                  held=t <= guard_held[0])
             rec.status.append((t, cmd.status, cmd.progress, cmd.cross_track))
             on_request(t, cmd)
             if cmd.status in (DONE, ABORTED) and done_at is None and s.run.end == "path_done":
