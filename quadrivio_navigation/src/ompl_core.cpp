@@ -125,9 +125,12 @@ struct Map
     }
 };
 
+// An angle in [-pi, pi): a yaw of exactly pi (a goal "facing west" from a quaternion) made
+// RRTConnect find no valid goal state ("Unable to sample any valid states for goal tree").
 double wrap(double a)
 {
-    return std::atan2(std::sin(a), std::cos(a));
+    const double w = std::atan2(std::sin(a), std::cos(a));
+    return w >= M_PI ? w - kTwoPi : w;
 }
 
 void advance(double &x, double &y, double &th, char kind, double length, double r)

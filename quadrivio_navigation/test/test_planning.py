@@ -266,3 +266,39 @@ def test_ompl_hands_over_to_the_lattice_in_the_rest_of_its_budget():
     assert r.planner == "ompl+lattice" and "OMPL found no path in" in r.note and "the lattice planned" in r.note
     assert collision_free(handed, r.poses) and r.planning_time < 12.0  # its 6 s budget, with room for a loaded machine
     assert ompl_alone.plan((-15.0, 0.0, 0.0), (35.0, 0.0, 0.0)).planner == "ompl"  # no hand-over when 0
+
+
+def test_a_start_wedged_in_an_orchard_lane_is_handed_to_ompl():
+    """Stopped askew in a 5 m lane (found in an orchard_blocked run: the vehicle ended a
+    multi-cusp turn 70 deg off the lane's axis), no chain of the lattice's primitives leaves
+    the start though the goal is in the same piece of free space: OMPL's Reeds-Shepp
+    sampling plans in the rest of the budget, and the result says so."""
+    import os
+
+    from quadrivio_description.site import load_site
+    from quadrivio_navigation.maps import load_map
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    grid = load_map(os.path.join(here, "..", "..", "scenarios", "maps", "orchard.yaml"), load_site().local_frame())
+    planner = Planner(grid, VEHICLE, params("lattice", budget=10.0))
+    start, goal = (35.45, 8.33, -1.22), (30.0, 7.5, math.pi)
+    lattice_alone = planner.lattice().plan(grid.to_grid_frame(*start), grid.to_grid_frame(*goal), 5.0)
+    assert not lattice_alone.ok and "every lattice motion from the start" in lattice_alone.reason
+    r = planner.plan(start, goal)
+    assert r.ok, r.reason
+    assert r.planner == "lattice+ompl" and "OMPL" in r.note
+    assert r.planning_time < 8.0  # its first way out, not the rest of a long budget
+    assert collision_free(planner, r.poses)
+    assert r.goal_offset[0] < 0.15 and r.goal_offset[1] < math.radians(12)
+
+
+@pytest.mark.parametrize("yaw", [math.pi, -math.pi, 3.14159265])
+def test_ompl_takes_a_goal_facing_exactly_west(yaw):
+    """A goal's yaw of exactly pi (atan2 of a quaternion facing west) left RRTConnect with no
+    valid goal state; any representation of west plans."""
+    cv = Canvas(-10.0, -10.0, 30.0, 20.0, 0.2)
+    cv.border(0.4)
+    planner = Planner(cv.grid(), VEHICLE, params("ompl", budget=3.0))
+    r = planner.plan((0.0, 0.0, 0.0), (10.0, 0.0, yaw))
+    assert r.ok and r.planner == "ompl", r.reason
+    assert r.goal_offset[0] < 0.15 and r.goal_offset[1] < math.radians(12)

@@ -20,6 +20,7 @@ ROS-free.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -53,6 +54,10 @@ class OmplParams:
                                  "the rest (said in the result's note); 0: OMPL alone, the whole budget. Sampling "
                                  "finds no way through cluttered woods (0 of 6 far-apart pairs in 2 s on a 400 m map "
                                  "at 1 m, 24 % occupied) where the lattice's search does")
+
+
+LATTICE_EXHAUSTED = "no drivable path: every lattice motion from the start was searched"  # lattice.py's reason
+MIN_FALLBACK = 1.0  # [s] OMPL's least time when the lattice hands a wedged start over to it
 
 
 @dataclass(frozen=True)
@@ -242,6 +247,23 @@ class Planner:
             out = PlanResult(r.ok, r.reason, kind, cost=r.cost, time_to_first=r.time_to_first,
                              expansions=r.expansions, solutions=[(t, c) for t, c, _, _ in r.solutions])
             poses, dirs, expanded = r.poses, r.directions, r.expanded
+            if not r.ok and r.reason.startswith(LATTICE_EXHAUSTED) and not cancelled():
+                # start and goal are in one piece of free space (checked above), yet no chain of
+                # primitives joins them: a start wedged between obstacles (a vehicle that stopped
+                # askew in a lane), from which only motions shorter or tighter than the lattice's
+                # get out. Reeds-Shepp sampling in the continuous space, in the rest of the budget.
+                # its first solution (a way out, not the best one: the next replan improves on it)
+                spent = time.perf_counter() - t0
+                first = dataclasses.replace(self.p.ompl, stop_at_first=True)
+                orr = self.ompl().plan(gs, gg, max(MIN_FALLBACK, budget - spent), first,
+                                       self.p.seed if seed is None else seed, self.p.sample_step, cancelled)
+                note = (f"the lattice found no chain of motions from the start in {spent:.2f} s; OMPL's Reeds-Shepp "
+                        f"sampling found a way out")
+                out = PlanResult(orr.ok, orr.reason if orr.ok else f"{r.reason}; then OMPL: {orr.reason}",
+                                 "lattice+ompl", cost=orr.cost, time_to_first=spent + orr.time_to_first,
+                                 expansions=r.expansions, solutions=[(spent + t, c) for t, c in orr.solutions],
+                                 note=note if orr.ok else "")
+                poses, dirs, expanded = orr.poses, orr.directions, r.expanded
         elif kind == "ompl":
             share = self.p.ompl.hand_over
             r = self.ompl().plan(gs, gg, budget * (share if share > 0.0 else 1.0), self.p.ompl,
