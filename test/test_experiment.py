@@ -62,7 +62,7 @@ def test_orchard_plans_and_parks_between_the_rows(tmp_path):
     # the follower stops within 0.5 m of the goal by its own estimate, which is 0.3 m off
     assert m["goal_position_error_m"] < 1.0 and m["goal_heading_error_deg"] < 10.0
     assert 45.0 < m["path_length_m"] < 75.0  # 36 m along the row, the U-turn, 10 m back
-    assert 0.0 < m["plan_time_s"] < 3.0
+    assert 0.0 < m["plan_time_s"] < 6.0  # its 5 s budget (scenarios/orchard.yaml)
     assert (tmp_path / "trajectory.png").stat().st_size > 20000
 
 

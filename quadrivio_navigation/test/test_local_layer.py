@@ -112,3 +112,26 @@ def test_update_cost_is_small():
     per = (time.perf_counter() - t0) / 20
     assert per < 0.05  # a loose bound for a loaded machine; the benchmark measures it (bench_obstacles)
     assert math.isfinite(per)
+
+
+def test_the_ground_tolerance_grows_with_range_by_the_attitudes_error():
+    """A braking vehicle pitched 5 deg nose down whose attitude says 3.5: its scan plane meets
+    the level ground 6.1 m ahead, where the estimated plane is 0.16 m above it: the ground with
+    0.02 m per metre of range, an obstacle with a flat 0.15 m tolerance; 1 m ahead the plane is
+    0.47 m up, and a body there stays an obstacle."""
+    import math
+
+    import numpy as np
+
+    from quadrivio_navigation.local_layer import dem_ground
+
+    level = lambda x, y: np.zeros_like(np.asarray(x, dtype=float))  # noqa: E731
+    pitch = math.radians(3.5)  # the attitude's (REP-103: positive is nose down)
+    R = np.array([[math.cos(pitch), 0.0, math.sin(pitch)], [0.0, 1.0, 0.0], [-math.sin(pitch), 0.0, math.cos(pitch)]])
+    ahead = 0.53 / math.tan(math.radians(5.0))  # where it meets the ground at a true pitch of 5 deg
+    flat = dem_ground(level, (0.0, 0.0, 0.53), R, 0.15)
+    grows = dem_ground(level, (0.0, 0.0, 0.53), R, 0.15, 0.02)
+    r = np.array([ahead])
+    assert not flat(np.zeros(1), r)[0] and grows(np.zeros(1), r)[0]
+    # 1 m ahead the plane is 0.47 m up: a body there is no ground
+    assert not grows(np.zeros(1), np.array([1.0]))[0]

@@ -408,7 +408,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             ground = None
             if l_heights is not None:
                 pos3, R3 = scanner_pose_3d(l_heights, x, y, yaw, l_att.roll, l_att.pitch, v.wheel_radius, t_b, R_b)
-                ground = dem_ground(l_heights, pos3, R3, layer.p.ground_tolerance)
+                ground = dem_ground(l_heights, pos3, R3, layer.p.ground_tolerance, layer.p.ground_tolerance_per_m)
             layer.add_scan(stamp, (sx, sy, heading), bearings, rr, ground)
         if sc is None:
             return

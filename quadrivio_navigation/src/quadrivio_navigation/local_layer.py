@@ -52,6 +52,9 @@ class LocalLayerParams:
     ground_tolerance: float = param(0.15, lo=0.0, hi=2.0, unit="m",
                                     doc="a return within this of the ground (DEM) or of where the scan plane meets "
                                         "level ground is the ground")
+    ground_tolerance_per_m: float = param(0.02, lo=0.0, hi=0.2, unit="m/m",
+                                          doc="...plus this per metre of range: the attitude's error (0.02: 1.1 deg) "
+                                              "at the range where a braking vehicle's scan plane meets the ground")
 
 
 class LocalLayer:
@@ -201,16 +204,18 @@ def scan_ground(ground: Callable[[np.ndarray, np.ndarray], np.ndarray], ranges, 
 
 
 def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position, rotation: np.ndarray,
-               tolerance: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+               tolerance: float, per_metre: float = 0.0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """A ``ground(bearings, ranges)`` test for :meth:`LocalLayer.add_scan` from a DEM
     ``heights(x, y)`` [m] and the scanner's 3D pose in the map (``position`` (3,),
-    ``rotation`` 3 x 3): a return within ``tolerance`` [m] of the terrain is the ground."""
+    ``rotation`` 3 x 3): a return within ``tolerance + per_metre x range`` [m] of the
+    terrain is the ground (``per_metre``: the tangent of the attitude's error, which moves a
+    far return up or down by that much per metre of range)."""
     pos = np.asarray(position, dtype=float)
 
     def ground(bearings: np.ndarray, ranges: np.ndarray) -> np.ndarray:
         d = np.stack([np.cos(bearings), np.sin(bearings), np.zeros_like(bearings)])
         pts = pos[:, None] + rotation @ d * ranges
-        return np.abs(pts[2] - heights(pts[0], pts[1])) <= tolerance
+        return np.abs(pts[2] - heights(pts[0], pts[1])) <= tolerance + per_metre * ranges
     return ground
 
 

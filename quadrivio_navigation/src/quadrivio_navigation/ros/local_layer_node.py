@@ -137,7 +137,7 @@ class LocalLayerNode:
         if self.heights is not None:
             pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
                                      self.vehicle.wheel_radius, t_b, R_b)
-            ground = dem_ground(self.heights, pos, R, self.p.ground_tolerance)
+            ground = dem_ground(self.heights, pos, R, self.p.ground_tolerance, self.p.ground_tolerance_per_m)
         with self.lock:
             self.layer.add_scan(stamp, (sx, sy, heading), bearings, ranges, ground)
         self.update_ms.append(1e3 * (time.perf_counter() - t0))
