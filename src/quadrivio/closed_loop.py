@@ -86,11 +86,7 @@ class ClosedLoopResult:
     counters: Dict[str, object]
 
 
-def _series(rows: List[tuple], names: Tuple[str, ...]) -> Series:
-    if not rows:
-        return Series.empty()
-    a = np.array(rows, dtype=float)
-    return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+_series = Series.from_rows
 
 
 def _config(cls, package: str, name: str, s: Scenario, section: Optional[str]):

@@ -38,6 +38,15 @@ class Series:
     def empty() -> "Series":
         return Series(np.zeros(0))
 
+    @staticmethod
+    def from_rows(rows, names) -> "Series":
+        """Rows ``(t, value...)`` with the values' ``names``, ordered by time (stable)."""
+        if not rows:
+            return Series.empty()
+        a = np.array(rows, dtype=float)
+        a = a[np.argsort(a[:, 0], kind="stable")]
+        return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+
 
 @dataclass
 class RunData:

@@ -54,13 +54,7 @@ def _yaw(q) -> float:
     return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
-def _series(rows: List[tuple], names: tuple) -> Series:
-    if not rows:
-        return Series.empty()
-    a = np.array(rows, dtype=float)
-    order = np.argsort(a[:, 0], kind="stable")
-    a = a[order]
-    return Series(a[:, 0], {n: a[:, i + 1] for i, n in enumerate(names)})
+_series = Series.from_rows
 
 
 # What is null in metrics.json without each topic (analyze names the missing ones)
