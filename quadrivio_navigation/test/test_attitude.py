@@ -9,15 +9,17 @@ from quadrivio_navigation.attitude import Attitude
 G = 9.80665
 
 
-def feed(att, t0, t1, pitch, accel, v0, wheel=None, dt=0.01):
-    """A vehicle on a slope ``pitch`` (nose down positive) accelerating at ``accel``: IMU at
-    100 Hz, wheel speed at 50 Hz (``wheel(t, v)`` may lie about it)."""
+def feed(att, t0, t1, pitch, accel, v0, wheel=None, dt=0.01, rate=0.0, gyro_bias=0.0):
+    """A vehicle on a slope ``pitch`` (nose down positive; changing at ``rate`` [rad/s])
+    accelerating at ``accel``: IMU at 100 Hz (its y gyro off by ``gyro_bias``), wheel speed
+    at 50 Hz (``wheel(t, v)`` may lie about it). Returns the speed (and the pitch)."""
     v = v0
     k = 0
     t = t0
     while t < t1 - 1e-9:
         f = (accel - G * math.sin(pitch), 0.0, G * math.cos(pitch))
-        att.add_imu(t, f, (0.0, 0.0, 0.0))
+        att.add_imu(t, f, (0.0, rate + gyro_bias, 0.0))
+        pitch += rate * dt
         if k % 2 == 0:
             att.add_speed(t, wheel(t, v) if wheel else v)
         v += accel * dt
@@ -31,8 +33,40 @@ def test_braking_is_no_pitch_and_the_slope_is_found():
     feed(att, 0.0, 5.0, 0.0, 0.0, 3.0)
     v = feed(att, 5.0, 5.7, 0.0, -4.0, 3.0)  # a hard stop on level ground
     assert abs(att.pitch) < math.radians(1.0)  # the accelerometer alone would read 22 deg
-    feed(att, 5.7, 12.0, math.radians(8), 0.0, max(v, 0.0))
+    feed(att, 5.7, 6.7, 0.0, 0.0, max(v, 0.0), rate=math.radians(8))  # onto an 8 deg slope in 1 s
     assert att.pitch == pytest.approx(math.radians(8), abs=math.radians(0.5))
+    feed(att, 6.7, 12.0, math.radians(8), 0.0, max(v, 0.0))
+    assert att.pitch == pytest.approx(math.radians(8), abs=math.radians(0.1))
+
+
+def test_the_gyros_bias_is_learnt():
+    """A y gyro 3e-3 rad/s off (a MEMS gyro's turn-on bias): a proportional pull alone holds
+    the pitch bias x tau off (0.69 deg at 4 s); the integral learns the bias."""
+    att = Attitude(tau=4.0)
+    feed(att, 0.0, 90.0, math.radians(3), 0.0, 2.0, gyro_bias=3e-3)
+    assert att.pitch == pytest.approx(math.radians(3), abs=math.radians(0.05))
+    assert att.bias_pitch == pytest.approx(3e-3, rel=0.05)
+
+
+def test_the_imus_lever_arm_is_no_tilt():
+    """A steady turn on level ground, 3 m/s at 0.6 rad/s, the IMU 0.55 m ahead of base_link
+    and 0.25 m up: on top of base_link's own v w_z to the left its accelerometer feels the
+    centripetal -r w_z^2 (0.2 m/s^2 backward: 1.1 deg of nose-down tilt to the accelerometer). With the lever
+    taken out the attitude stays level."""
+    r, v, wz = (0.55, 0.0, 0.25), 3.0, 0.6
+    f = (-wz * wz * r[0], v * wz - wz * wz * r[1], G)
+    pitches = {}
+    for lever in ((0.0, 0.0, 0.0), r):
+        att = Attitude(tau=4.0, lever=lever)
+        t = 0.0
+        while t < 20.0:
+            if round(t * 100) % 2 == 0:
+                att.add_speed(t, v)
+            att.add_imu(t, f, (0.0, 0.0, wz))
+            t += 0.01
+        pitches[lever] = (att.roll, att.pitch)
+    assert abs(pitches[r][0]) < math.radians(0.05) and abs(pitches[r][1]) < math.radians(0.05)
+    assert abs(pitches[(0.0, 0.0, 0.0)][1]) > math.radians(0.5)  # the error it takes out is there
 
 
 def test_a_spinning_wheel_is_not_believed():
