@@ -149,3 +149,29 @@ def test_a_sure_estimate_keeps_a_jump_burst_out():
     assert not any(v.use for v in during)
     after = g.decide(t + 10.0, np.zeros(2), P, R, (), (-off, R, R, Q))
     assert after.use and g.burst is None
+
+
+@pytest.mark.parametrize("burst_before_fault", [True, False])
+def test_a_fault_found_later_does_not_let_an_earlier_burst_in(burst_before_fault):
+    """A wheel slip found at t unsettles the gate (the estimate rode false odometry since
+    about t - window): the next fixes go in untested. A burst that began before that, while
+    the estimate was trusted, is no error of the estimate's: its fixes stay out until they
+    jump back (found on rough terrain: a slip 4 s into a 5.4 m burst let it in, the estimate
+    jumped 5 m). A "burst" that began after it may be the estimate's own error: cleared."""
+    g = settled_gate(group=0.0)
+    R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 1e-3
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
+        t += 0.2
+    off = np.array([5.4, 0.0])
+    assert not g.decide(t, off, P, R, (), (off, R, R, Q)).use  # the burst starts at t
+    fault_from = t + 1.0 if burst_before_fault else t - 1.0
+    g.unsettle(keep_burst_before=fault_from)
+    during = [g.decide(t + 0.2 * i, off, P, R, (), (np.zeros(2), R, R, Q)) for i in range(1, 11)]
+    if burst_before_fault:
+        assert not any(v.use for v in during) and g.burst is not None
+        after = g.decide(t + 2.2, np.zeros(2), P, R, (), (-off, R, R, Q))  # it jumps back
+        assert after.use and g.burst is None
+    else:
+        assert all(v.use for v in during)

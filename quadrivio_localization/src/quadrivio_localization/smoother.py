@@ -475,7 +475,8 @@ class Localizer:
         was = self.slip.since is not None
         slipping = self.slip.update(t)
         if slipping and not was:
-            self.gate.unsettle()
+            p = self.slip.p
+            self.gate.unsettle(keep_burst_before=self.slip.since - max(p.window, p.gps_window))
         self.leveller.ignore_wheel = slipping
         self.events.extend(self.slip.pop_events())
         return slipping
