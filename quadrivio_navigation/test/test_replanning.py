@@ -5,7 +5,11 @@ import numpy as np
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_navigation.costmap import Footprint
 from quadrivio_navigation.maps import OccupancyGrid
-from quadrivio_navigation.replanning import blocked_reason, known_distance, merge_local, new_marks
+import math
+
+from quadrivio_navigation.fields import inside
+from quadrivio_navigation.replanning import (HeldPoints, blocked_reason, known_distance, mark_discs, merge_local,
+                                             new_marks)
 
 FP = Footprint.from_vehicle(load_vehicle(), 0.15)
 PATH = np.column_stack([np.arange(0.0, 30.0, 0.1), np.zeros(300), np.zeros(300)])
@@ -54,3 +58,36 @@ def test_merge_marks_the_static_cells():
     r, c = st.cell_of(12.03, 0.27)
     assert merged.data[r, c] == 100 and st.data[r, c] == 0
     assert int((merged.data >= 100).sum()) == int((st.data >= 100).sum()) + 1
+
+
+def test_held_points_are_gathered_while_held_and_forgotten_after():
+    h = HeldPoints()
+    h.update(True, (10.0, 5.0, math.pi / 2), (2.0, 0.5))  # 2 m ahead, 0.5 m left of a vehicle facing +y
+    h.update(True, (10.0, 5.0, math.pi / 2), (2.02, 0.5))  # the same point again: kept once
+    h.update(True, None, (1.0, 0.0))  # no pose: nothing to place
+    h.update(True, (10.0, 5.0, 0.0), (float("nan"), 0.0))  # NaN: nothing
+    assert len(h.points) == 1
+    assert h.points[0] == (np.float64(9.5), np.float64(7.0)) or np.allclose(h.points[0], (9.5, 7.0))
+    assert h.near(9.0, 7.0, 1.0) and not h.near(0.0, 0.0, 1.0)
+    h.update(False, (10.0, 5.0, 0.0), None)  # driving on
+    assert h.points == []
+
+
+def test_discs_close_the_way_toward_the_points_but_not_the_start():
+    """A vehicle standing 0.35 m (its padded footprint's front) from a point: a disc of
+    0.45 m marks the cells around the point, except those under the vehicle, so that the
+    start stays valid and the way ahead is closed."""
+    grid = OccupancyGrid(np.zeros((100, 100), dtype=np.int8), 0.1, (-5.0, -5.0, 0.0))
+    pose = (0.0, 0.0, 0.0)
+    point = (FP.front + 0.35, 0.0)
+    out = mark_discs(grid, [point], 0.45, FP, pose)
+    rows, cols = np.nonzero(out.data == 100)
+    x, y, _ = grid.to_map_frame((cols + 0.5) * 0.1, (rows + 0.5) * 0.1)
+    d = np.hypot(x - point[0], y - point[1])
+    assert len(d) > 30 and d.max() <= 0.45 + 1e-9
+    assert not inside(FP, np.column_stack([x, y]), *pose).any()  # the start is free
+    assert np.any(np.abs(y) < 0.1) and x.min() < FP.front + 0.2  # the disc reaches a cell from the footprint
+    assert grid.data.max() == 0  # the input is untouched
+    # without a footprint the whole disc, and the map's edge clips it
+    full = mark_discs(grid, [(-4.95, -4.95)], 0.45)
+    assert int((full.data == 100).sum()) > 0 and full.data[0, 0] == 100

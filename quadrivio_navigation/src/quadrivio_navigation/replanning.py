@@ -12,7 +12,8 @@ Pure and ROS-free (the planner node calls it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from typing import Callable, List, Optional, Tuple
 
 import numpy as np
@@ -93,6 +94,67 @@ def merge_local(static: Grid, local: Grid, known: Optional[np.ndarray] = None, t
     return Grid(data, static.resolution, static.origin)
 
 
+def mark_discs(grid: Grid, points, radius: float, footprint=None, pose=None) -> Grid:
+    """``grid`` with the cells whose centres lie within ``radius`` [m] of each map-frame
+    point marked occupied (100), but for those under ``footprint`` (grown by a cell) at
+    ``pose``: where the vehicle stands stays a valid start, and its way toward the points is
+    closed."""
+    from .costmap import Footprint
+
+    data = grid.data.copy()
+    res = grid.resolution
+    n = int(math.ceil(radius / res))
+    for x, y in points:
+        gx, gy, _ = grid.to_grid_frame(float(x), float(y))
+        r0, c0 = int(math.floor(gy / res)), int(math.floor(gx / res))
+        rr, cc = np.meshgrid(np.arange(r0 - n, r0 + n + 1), np.arange(c0 - n, c0 + n + 1), indexing="ij")
+        disc = (np.hypot((cc + 0.5) * res - gx, (rr + 0.5) * res - gy) <= radius) & \
+            (rr >= 0) & (rr < grid.height) & (cc >= 0) & (cc < grid.width)
+        if footprint is not None and pose is not None and disc.any():
+            fp = Footprint(footprint.front + res, footprint.rear + res, footprint.left + res, footprint.right + res)
+            mx, my, _ = grid.to_map_frame((cc[disc] + 0.5) * res, (rr[disc] + 0.5) * res)
+            under = inside(fp, np.column_stack([mx, my]), *pose)
+            idx = np.flatnonzero(disc)
+            disc.flat[idx[under]] = False
+        data[rr[disc], cc[disc]] = 100
+    return replace(grid, data=data)
+
+
+class HeldPoints:
+    """Where the obstacle guard held the vehicle: the points it held it for (the nearest
+    point of each held decision, in the map frame), gathered while a hold lasts and
+    forgotten when the vehicle drives on. A replan because of the hold keeps
+    ``held_clearance`` from them (:func:`mark_discs`): the orchard's lattice planned, from a
+    vehicle standing askew 0.35 m (along its arc) from a tree, the same turn-around that began
+    toward the tree, the guard would not let it creep there (its ``creep_margin`` is 0.45 m),
+    and the two held each other for 140 s, a replan every 8.5 s. The points are not added to
+    the map: the tree is in it, where the estimate puts it; this is how near the guard lets
+    the vehicle come."""
+
+    def __init__(self, limit: int = 64) -> None:
+        self.points: List[Tuple[float, float]] = []
+        self.limit = limit
+
+    def update(self, held: bool, pose: Optional[Tuple[float, float, float]],
+               nearest: Optional[Tuple[float, float]]) -> None:
+        """A guard decision: ``held`` or not, the vehicle's ``pose`` (map) and the ``nearest``
+        point it saw (base_link), either None when unknown."""
+        if not held:
+            self.points.clear()
+            return
+        if pose is None or nearest is None or not all(math.isfinite(a) for a in (*pose, *nearest)):
+            return
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        p = (pose[0] + c * nearest[0] - s * nearest[1], pose[1] + s * nearest[0] + c * nearest[1])
+        if any(math.hypot(p[0] - q[0], p[1] - q[1]) < 0.1 for q in self.points):
+            return
+        self.points.append(p)
+        del self.points[:-self.limit]
+
+    def near(self, x: float, y: float, within: float = 10.0) -> List[Tuple[float, float]]:
+        return [q for q in list(self.points) if math.hypot(q[0] - x, q[1] - y) <= within]
+
+
 def replan_start(poses: Optional[np.ndarray], current: Tuple[float, float, float], speed: float, lead_time: float,
                  collides: Callable[[np.ndarray], List[int]]) -> Tuple[np.ndarray, Tuple[float, float, float]]:
     """Where a replan starts: ``(the poses of the current path kept, the start pose)``.
@@ -144,6 +206,10 @@ class PlannerNodeParams:
                                    "long on a path that is not blocked (an obstacle beside a tight turn)")
     replan_budget: float = param(5.0, lo=0.1, hi=600.0, unit="s",
                                  doc="planning budget of a replan from a standing vehicle (it waits anyway)")
+    held_clearance: float = param(0.45, lo=0.0, hi=5.0, unit="m",
+                                  doc="a replan because the guard held the vehicle keeps this far from the points it "
+                                      "held it for (the guard's creep_margin: nearer, it lets the vehicle creep no "
+                                      "further)")
     known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
                                    doc="local marks this close to the map's obstacles are those obstacles (the marks "
                                        "lie where the estimated pose puts them: the localization's error included)")

@@ -54,7 +54,8 @@ from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult
-from ..replanning import PlannerNodeParams, blocked_reason, known_distance, merge_local, overtaken, replan_start
+from ..replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs, merge_local,
+                          overtaken, replan_start)
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 from .site_inputs import scenario_terrain, site_frame
@@ -109,6 +110,8 @@ class PlannerNode:
         self.speed = 0.0  # [m/s] predicted
         self.known: Optional[np.ndarray] = None  # distance [m] of each static cell to the map's obstacles
         self.held_since: Optional[float] = None  # the obstacle guard holds the vehicle since
+        self.held_points = HeldPoints()  # ...for these points (map)
+        self.held_replan = False  # the next replan is because of the hold
         self.path_poses: Optional[np.ndarray] = None  # the published path
         self.static_grid: Optional[Grid] = None
         self.blocked_since: Optional[float] = None
@@ -168,6 +171,7 @@ class PlannerNode:
 
     def _on_guard(self, m) -> None:
         held = m.action in (m.STOP, m.HOLD) or (m.speed_limit < 0.05 and abs(m.requested_speed) > 0.1)
+        self.held_points.update(held, self.current, (m.nearest.x, m.nearest.y) if m.has_nearest else None)
         if not held:
             self.held_since = None
         elif self.held_since is None:
@@ -190,6 +194,7 @@ class PlannerNode:
         if not why and self.held_since is not None and now - self.held_since >= self.node_params.held_replan and \
                 now - self.last_try >= self.node_params.retry:
             why = f"the obstacle guard has held the vehicle for {now - self.held_since:.0f} s"
+            self.held_replan = True
         if why:
             self.jobs.put(("replan", why))
 
@@ -243,6 +248,10 @@ class PlannerNode:
         if problem:
             return
         merged = merge_local(self.static_grid, self.local, self.known, self.node_params.known_tolerance)
+        if self.held_replan and self.planner is not None:  # keep the guard's distance from what it held for
+            merged = mark_discs(merged, self.held_points.near(self.current[0], self.current[1]),
+                                self.node_params.held_clearance, self.planner.footprint, self.current)
+        self.held_replan = False
         t = time.monotonic()
         planner = Planner(merged, self.vehicle, self.p, self.heights, self.rollover)
         occupied = planner.check_pose(goal, "goal")
