@@ -189,8 +189,8 @@ private:
 
   void reset()
   {
-    core_.reset(new g::Guard(config_.params, config_.vehicle));
-    attitude_ = g::Attitude(config_.params.slope_tau);
+    core_.reset(new g::Guard(config_.params, config_.vehicle, &config_.terrain));
+    attitude_ = g::Attitude(config_.params.slope_tau, 8.0, 0.25, 0.05, config_.imu_xyz);
     has_request_ = false;
     has_last_action_ = false;
     has_pose_ = false;
@@ -254,6 +254,7 @@ private:
     pose_[1] = p.x;
     pose_[2] = p.y;
     pose_[3] = yaw;
+    pose_[4] = sd;
     core_->onPose(stamp, p.x, p.y, yaw, sd);
   }
 
@@ -317,7 +318,8 @@ private:
       pos[i] += Rmap[3 * i] * tb[0] + Rmap[3 * i + 1] * tb[1] + Rmap[3 * i + 2] * tb[2];
     int n = 0;
     auto out = g::demGround(config_.terrain, pos, R, m.ranges, m.angle_min, m.angle_increment, m.range_min,
-                            m.range_max, kMaxRange, config_.ground_tolerance, &n);
+                            m.range_max, kMaxRange, config_.ground_tolerance, &n, 0.0,
+                            config_.ground_position_sigmas * pose_[4], config_.ground_tolerance_max);
     ground_returns_ += n;
     return out;
   }
@@ -517,7 +519,7 @@ private:
   std::map<std::string, geometry_msgs::TransformStamped> static_;
   std::map<std::string, Mount> mounts_;
   bool ok_ = false, has_request_ = false, has_last_action_ = false, has_pose_ = false;
-  double request_[4] = { 0, 0, 0, 0 }, pose_[4] = { 0, 0, 0, 0 };
+  double request_[4] = { 0, 0, 0, 0 }, pose_[5] = { 0, 0, 0, 0, 0 };  // stamp, x, y, yaw, horizontal sd
   int last_action_ = 0;
   long ground_returns_ = 0;
   double last_now_ = 0.0, next_diag_ = 0.0;

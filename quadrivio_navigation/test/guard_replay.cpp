@@ -7,7 +7,7 @@
 //                                          SCAN_STAMP DIRECTION SLOPE SP_SPEED SP_HANDLEBAR SP_BRAKE STOPS FAULTS
 //                                          ZONE_STOPS|FIELD|SCANNER|REASON"
 //   attitude_speed T V | attitude_imu T FX FY FZ WX WY WZ -> "attitude ROLL PITCH"
-//   ground X Y Z ROLL PITCH YAW ANGLE_MIN INC RMIN RMAX MAX_RANGE TOL N R1..RN -> "ground 0 1 ..."
+//   ground X Y Z ROLL PITCH YAW ANGLE_MIN INC RMIN RMAX MAX_RANGE TOL PER_M SLACK CAP N R1..RN -> "ground 0 1 ..."
 #include <quadrivio_navigation/guard_core.h>
 
 #include <cstdio>
@@ -28,8 +28,8 @@ int main()
     std::fprintf(stderr, "guard_replay: bad configuration: %s\n", error.c_str());
     return 1;
   }
-  g::Guard guard(config.params, config.vehicle);
-  g::Attitude attitude(config.params.slope_tau);
+  g::Guard guard(config.params, config.vehicle, &config.terrain);
+  g::Attitude attitude(config.params.slope_tau, 8.0, 0.25, 0.05, config.imu_xyz);
   std::string line;
   while (std::getline(std::cin, line))
   {
@@ -102,10 +102,13 @@ int main()
     }
     else if (kind == "ground")
     {
-      double pos[3], rpy[3], amin, inc, rmin, rmax, max_range, tol, R[9];
+      double pos[3], rpy[3], amin, inc, rmin, rmax, max_range, tol, per_m, slack, cap, R[9];
       size_t n;
       in >> pos[0] >> pos[1] >> pos[2] >> rpy[0] >> rpy[1] >> rpy[2] >> amin >> inc >> rmin >> rmax >> max_range >>
-          tol >> n;
+          tol >> per_m >> slack;
+      std::string cap_word;  // "inf" as Python prints it
+      in >> cap_word >> n;
+      cap = std::strtod(cap_word.c_str(), nullptr);
       std::vector<float> ranges(n);
       for (auto& r : ranges)
       {
@@ -114,7 +117,8 @@ int main()
         r = std::strtof(word.c_str(), nullptr);
       }
       g::rpyMatrix(rpy[0], rpy[1], rpy[2], R);
-      const auto ground = g::demGround(config.terrain, pos, R, ranges, amin, inc, rmin, rmax, max_range, tol);
+      const auto ground =
+          g::demGround(config.terrain, pos, R, ranges, amin, inc, rmin, rmax, max_range, tol, nullptr, per_m, slack, cap);
       std::printf("ground");
       for (char c : ground)
         std::printf(" %d", c ? 1 : 0);

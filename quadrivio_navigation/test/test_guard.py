@@ -143,8 +143,8 @@ def test_good_scan_geometry_passes():
 
 
 # ------------------------------------------------------------------- guard
-def make_guard(vehicle, **changes):
-    return Guard(from_mapping(GuardParams, changes, "test"), vehicle)
+def make_guard(vehicle, heights=None, **changes):
+    return Guard(from_mapping(GuardParams, changes, "test"), vehicle, heights)
 
 
 def scan(xy, n_rays=None, n_invalid=0):
@@ -297,6 +297,57 @@ def test_downhill_lengthens_the_protective_field(vehicle):
     d = g2.decide(3.0, 2.0, 0.0)
     assert d.slope == pytest.approx(math.radians(10), abs=0.01)
     assert d.protective > flat + 0.2
+
+
+def test_a_bumps_pitch_is_not_the_grade_without_a_dem(vehicle):
+    """Without a DEM the braking slope is the pitch low-passed over slope_smoothing (1 s): a
+    bump's face pitching the body 14 deg for 0.2 s moves it by a fifth of that, a slope held
+    for 5 s is taken whole."""
+    g = make_guard(vehicle)
+    for k in range(100):  # 2 s level
+        g.on_pitch(k * 0.02, 0.0)
+    for k in range(10):  # 0.2 s on a bump's face
+        g.on_pitch(2.0 + k * 0.02, math.radians(14))
+    g.on_state(2.2, 2.0, 0.0)
+    g.on_scan("scan/front", 2.2, scan([]))
+    d = g.decide(2.2, 2.0, 0.0)
+    assert 0.0 < d.slope < math.radians(14) * 0.25
+    for k in range(250):
+        g.on_pitch(2.2 + k * 0.02, math.radians(8))
+    g.on_state(7.2, 2.0, 0.0)
+    g.on_scan("scan/front", 7.2, scan([]))
+    assert g.decide(7.2, 2.0, 0.0).slope == pytest.approx(math.radians(8), abs=math.radians(0.1))
+
+
+def test_with_a_dem_the_slope_is_its_grade_over_the_stopping_distance(vehicle):
+    """A DEM falling 10 % toward +x and level beyond x = 3 m: driving +x from x = 0 the
+    slope is the mean grade from the vehicle to where it would stop (by hand: the stopping
+    distance at that grade, the drop over it), whatever the body's pitch on a bump;
+    reversing from there it brakes uphill; without a fresh pose the pitch again."""
+    def heights(x, y):
+        x = np.asarray(x, dtype=float)
+        return -0.1 * np.clip(x, None, 3.0)
+
+    g = make_guard(vehicle, heights)
+    g.on_pitch(1.0, math.radians(14))  # a bump's face
+    g.on_pose(1.0, 0.0, 0.0, 0.0, 0.1)
+    g.on_state(1.0, 2.0, 0.0)
+    g.on_scan("scan/front", 1.0, scan([]))
+    g.on_scan("scan/rear", 1.0, scan([]))
+    d = g.decide(1.0, 2.0, 0.0)
+    p = g.p
+    slope = 0.0
+    for _ in range(2):  # by hand, as dem_slope says
+        dist = stopping_distance(2.0, p.brake_latency + p.scan_period, effective_decel(p.brake_decel, slope)) + p.margin
+        slope = math.atan2(0.1 * min(dist, 3.0), dist)
+    assert 0.0 < d.slope == pytest.approx(slope, abs=1e-12)
+    assert d.slope < math.atan(0.1) + 1e-9
+    g.on_state(1.05, -1.0, 0.0)  # reversing: uphill, so brakes harder
+    assert g.decide(1.05, -1.0, 0.0).slope < 0.0
+    g.on_state(2.0, 2.0, 0.0)  # the pose 1 s old: the DEM says nothing, the pitch does
+    g.on_pitch(2.0, math.radians(14))
+    g.on_scan("scan/front", 2.0, scan([]))
+    assert g.decide(2.0, 2.0, 0.0).slope > math.radians(5)
 
 
 # -------------------------------------------------------------------- zone

@@ -16,7 +16,7 @@ import pytest
 
 from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
-from quadrivio_navigation.attitude import Attitude
+from quadrivio_navigation.attitude import Attitude, imu_lever
 from quadrivio_navigation.fields import ScanPoints
 from quadrivio_navigation.guard import Guard, GuardParams
 from quadrivio_navigation.local_layer import dem_ground
@@ -27,6 +27,7 @@ from quadrivio_terrain.terrain import Heightfield
 
 class NodeParamsStub:
     base_frame, request_timeout, ground_tolerance = "base_link", 0.25, 0.15
+    ground_position_sigmas, ground_tolerance_max = 2.0, 0.3
 
 
 def _replay_binary():
@@ -100,8 +101,8 @@ def _script(events):
     return out
 
 
-def _python(events, p, vehicle):
-    g = Guard(p, vehicle)
+def _python(events, p, vehicle, hf=None):
+    g = Guard(p, vehicle, None if hf is None else hf.heights)
     out = []
     for e in events:
         if e[0] == "state":
@@ -157,16 +158,23 @@ def test_decisions_match_the_python_core(seed):
     if seed % 3 == 2:  # an operating zone
         p = replace_nested(p, {"zone": [[-6.0, -6.0], [9.0, -5.0], [7.0, 8.0], [-5.0, 6.0]], "max_position_sd": 0.8})
     rng = np.random.default_rng(seed)
+    hf = None
+    if seed % 2 == 1:  # a DEM: the braking slope is its grade ahead (a steep, rough one, not ours)
+        hf = Heightfield(np.cumsum(np.random.default_rng(100 + seed).normal(0.01, 0.03, (61, 81)), axis=1), 0.25)
     events = _random_events(rng, p)
-    cpp = _run(_config(p, vehicle), _script(events))
-    actions = _compare(_python(events, p, vehicle), cpp)
+    cpp = _run(_config(p, vehicle, hf), _script(events))
+    py = _python(events, p, vehicle, hf)
+    actions = _compare(py, cpp)
     assert len(actions) >= 3, f"the random cases reached only actions {actions}"
+    if hf is not None:
+        slopes = {round(d.slope, 6) for d, *_ in py if d.direction != 0} - {0.0, round(p.slope_unknown, 6)}
+        assert len(slopes) >= 2, "the DEM gave the fields hardly any slope: the comparison tests little"
 
 
 def test_attitude_matches_the_python_filter():
     vehicle = load_vehicle()
     rng = np.random.default_rng(7)
-    a = Attitude(GuardParams().slope_tau)
+    a = Attitude(GuardParams().slope_tau, lever=imu_lever(vehicle))
     script, ref = [], []
     t = 0.0
     for k in range(600):
@@ -200,14 +208,17 @@ def test_dem_ground_matches_the_python_test():
         ranges[rng.random(n) < 0.05] = math.inf
         amin, inc = -math.pi / 2, math.pi / (n - 1)
         R = np.array(rpy_matrix(rpy))
-        ground = dem_ground(hf.heights, np.array(pos), R, 0.3)
+        per_m, slack, cap = (float(rng.choice([0.0, 0.02])), float(rng.choice([0.0, rng.uniform(0, 2)])),
+                             float(rng.choice([math.inf, 0.35])))
+        ground = dem_ground(hf.heights, np.array(pos), R, 0.3, per_m, slack, cap)
         r = ranges.astype(np.float32).astype(float)  # the scan's float32
         hit = np.isfinite(r) & (r >= 0.1) & (r <= min(30.0, 20.0))
         expect = np.zeros(n, dtype=bool)
         bearings = amin + inc * np.arange(n)
         expect[hit] = ground(bearings[hit], r[hit])
         ref.append(expect)
-        script.append("ground " + " ".join(repr(x) for x in pos + rpy + (amin, inc, 0.1, 30.0, 20.0, 0.3)) +
+        script.append("ground " + " ".join(repr(x) for x in pos + rpy + (amin, inc, 0.1, 30.0, 20.0, 0.3, per_m, slack,
+                                                                         cap)) +
                       f" {n} " + " ".join(repr(float(x)) for x in r))
     out = _run(_config(GuardParams(), vehicle, hf), script)
     got = [np.array([bool(int(x)) for x in line.split()[1:]]) for line in out]

@@ -135,3 +135,25 @@ def test_the_ground_tolerance_grows_with_range_by_the_attitudes_error():
     assert not flat(np.zeros(1), r)[0] and grows(np.zeros(1), r)[0]
     # 1 m ahead the plane is 0.47 m up: a body there is no ground
     assert not grows(np.zeros(1), np.array([1.0]))[0]
+
+
+def test_the_ground_tolerance_grows_with_the_poses_uncertainty_on_a_slope_only():
+    """A pose 0.6 m off on a 25 % bump face draws the ground 0.15 m off the DEM: with a slack
+    of 2 sds (0.3 m each: 0.6 m) times the DEM's gradient there (0.25) a return 0.25 m off is
+    the ground; on level ground the slack adds nothing; and the cap keeps a person's legs
+    (0.4 m up) an obstacle however uncertain the pose (a slack of 1.2 m would take them)."""
+    import numpy as np
+
+    from quadrivio_navigation.local_layer import dem_ground
+
+    face = lambda x, y: 0.25 * np.asarray(x, dtype=float)  # noqa: E731
+    level = lambda x, y: np.zeros_like(np.asarray(x, dtype=float))  # noqa: E731
+    R = np.eye(3)
+    ray = (np.zeros(1), np.array([3.0]))  # straight ahead 3 m, the scanner at x = 0
+    for off, slack, cap, expect in ((0.25, 0.0, 0.3, False), (0.25, 0.6, 0.3, True), (0.40, 1.2, np.inf, True),
+                                    (0.40, 1.2, 0.3, False)):
+        z = 0.25 * 3.0 + off
+        got = dem_ground(face, (0.0, 0.0, z), R, 0.15, 0.0, slack, cap)(*ray)[0]
+        assert got == expect, (off, slack, cap)
+    assert not dem_ground(level, (0.0, 0.0, 0.25), R, 0.15, 0.0, 5.0)(*ray)[0]  # level: no slack
+    assert dem_ground(level, (0.0, 0.0, 0.14), R, 0.15, 0.0, 5.0)(*ray)[0]

@@ -154,7 +154,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_description.frames import rpy_matrix
     from quadrivio_localization.predictor import Predictor, PredictorParams, predicted
     from quadrivio_localization.smoother import Localizer
-    from quadrivio_navigation.attitude import Attitude
+    from quadrivio_navigation.attitude import Attitude, imu_lever
     from quadrivio_navigation.costmap import Footprint
     from quadrivio_navigation.fields import ScanError, check_scan, scan_points
     from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route
@@ -165,8 +165,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
     from quadrivio_navigation.planning import Planner, PlannerParams
-    from quadrivio_navigation.replanning import (PlannerNodeParams, blocked_reason, known_distance, merge_local,
-                                                 replan_start)
+    from quadrivio_navigation.replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance,
+                                                 mark_discs, merge_local, replan_start)
     from quadrivio_navigation.rollover import RolloverParams
     from quadrivio_plc import protocol
     from quadrivio_plc.client import Multiplexer, PlcClientParams
@@ -217,9 +217,10 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     gp = _config(GuardParams, "quadrivio_navigation", "guard.yaml", s, "guard")
     if gnode.zone_file and not gp.zone:
         gp = replace_nested(gp, {"zone": [list(z) for z in load_zone_file(gnode.zone_file)]}, "zone_file")
-    guard = Guard(gp, v)
-    g_att = Attitude(gp.slope_tau)
     g_heights = heights if gnode.terrain_from_scenario else None
+    guard = Guard(gp, v, g_heights)
+    lever = imu_lever(v)
+    g_att = Attitude(gp.slope_tau, lever=lever)
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rpy_matrix(
         v.sensors["imu_link"].rpy if "imu_link" in v.sensors else (0.0, 0.0, 0.0))
 
@@ -249,7 +250,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         lnode = _config(LocalLayerNodeParams, "quadrivio_navigation", "local_layer.yaml", s, None)
         llp = _config(LocalLayerParams, "quadrivio_navigation", "local_layer.yaml", s, "local_layer")
         layer = LocalLayer(llp)
-        l_att = Attitude()
+        l_att = Attitude(lever=lever)
         l_heights = heights if lnode.terrain_from_scenario else None
     goal = tuple(pathp.goal) if pathp.kind == "goal" else None
     if goal is not None and planner is None:
@@ -361,12 +362,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if d.action in (STOP, HOLD, FAULT) or d.limit < fp.pure_pursuit.min_speed:
             guard_held[0] = t + 0.3
         held = d.action in (STOP, HOLD) or (d.limit < 0.05 and abs(requested) > 0.1)
+        held_points.update(held, pose[1:4] if pose is not None else None, d.nearest)
         if not held:
             guard_held[1] = None
         elif guard_held[1] is None:
             guard_held[1] = t
 
     guard_held = [-1.0, None]  # the follower's held_until, the planner's held_since
+    held_points = HeldPoints()
 
     def send(t: float, speed: float, handlebar: float, brake: float) -> None:
         """The guard's setpoint to the PLCClient, which forwards it at once in AUTO."""
@@ -404,7 +407,9 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             ground = None
             if l_heights is not None:
                 pos3, R3 = scanner_pose_3d(l_heights, x, y, yaw, l_att.roll, l_att.pitch, v.wheel_radius, t_b, R_b)
-                ground = dem_ground(l_heights, pos3, R3, layer.p.ground_tolerance, layer.p.ground_tolerance_per_m)
+                lp = layer.p
+                ground = dem_ground(l_heights, pos3, R3, lp.ground_tolerance, lp.ground_tolerance_per_m,
+                                    lp.ground_position_sigmas * pose[5], lp.ground_tolerance_max)
             layer.add_scan(stamp, (sx, sy, heading), bearings, rr, ground)
         if sc is None:
             return
@@ -415,7 +420,9 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
             _, x, y, yaw = pose[:4]
             pos3, R3 = scanner_pose_3d(g_heights, x, y, yaw, g_att.roll, g_att.pitch, v.wheel_radius, t_b, R_b)
-            gr = scan_ground(dem_ground(g_heights, pos3, R3, gnode.ground_tolerance), ranges, smp.angle_min,
+            gr = scan_ground(dem_ground(g_heights, pos3, R3, gnode.ground_tolerance, 0.0,
+                                        gnode.ground_position_sigmas * pose[5], gnode.ground_tolerance_max),
+                             ranges, smp.angle_min,
                              smp.angle_increment, smp.range_min, smp.range_max, MAX_RANGE)
             if gr.any():
                 rr = np.where(gr, np.inf, np.asarray(ranges, dtype=float))
@@ -557,10 +564,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 why = blocked_reason(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
                                      known, pnode.known_tolerance)
                 hs = guard_held[1]
-                if not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry:
+                held_why = not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry
+                if held_why:
                     why = f"the obstacle guard has held the vehicle for {t - hs:.0f} s"
                 if why:
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
+                    if held_why:
+                        merged = mark_discs(merged, held_points.near(cur[0], cur[1]), pnode.held_clearance,
+                                            planner.footprint, cur)
                     plan(t, cur, merged, why)
         if steps % follow_steps == 0 and follower is not None and pose is not None:
             age = max(0.0, t - pose[0])

@@ -295,11 +295,15 @@ inline void rpyMatrix(double r, double p, double y, double R[9])
 class Attitude
 {
 public:
-  explicit Attitude(double tau = 4.0, double max_accel = 8.0, double speed_timeout = 0.25)
-    : tau_(tau), max_accel_(max_accel), speed_timeout_(speed_timeout)
+  explicit Attitude(double tau = 4.0, double max_accel = 8.0, double speed_timeout = 0.25, double max_bias = 0.05,
+                    const double lever[3] = nullptr)
+    : tau_(tau), max_accel_(max_accel), speed_timeout_(speed_timeout), max_bias_(max_bias)
   {
+    if (lever != nullptr)
+      std::copy(lever, lever + 3, lever_);
   }
   double roll = 0.0, pitch = 0.0;
+  double bias_roll = 0.0, bias_pitch = 0.0;  // [rad/s] learnt from the pull (attitude.py)
   bool hasImu() const { return has_t_; }
   double lastImu() const { return t_; }
 
@@ -316,10 +320,19 @@ public:
     speed_v_ = v;
   }
 
-  void addImu(double t, const double f[3], const double w[3])
+  void addImu(double t, const double f_in[3], const double w[3])
   {
     if (has_t_ && t <= t_)
       return;
+    // the specific force at base_link's origin: the IMU's lever also feels w x (w x r)
+    double f[3] = { f_in[0], f_in[1], f_in[2] };
+    if (lever_[0] != 0.0 || lever_[1] != 0.0 || lever_[2] != 0.0)
+    {
+      const double wr = w[0] * lever_[0] + w[1] * lever_[1] + w[2] * lever_[2];
+      const double ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+      for (int i = 0; i < 3; ++i)
+        f[i] = f_in[i] - (w[i] * wr - lever_[i] * ww);
+    }
     const bool fresh = has_speed_ && t - speed_t_ <= speed_timeout_;
     const double v = fresh ? speed_v_ : 0.0;
     const double gx = f[0] - (fresh ? accel_ : 0.0), gy = f[1] - v * w[2], gz = f[2];
@@ -335,18 +348,23 @@ public:
     const double dt = t - t_;
     t_ = t;
     const double sr = std::sin(roll), cr = std::cos(roll), tp = std::tan(pitch);
-    roll += (w[0] + (w[1] * sr + w[2] * cr) * tp) * dt;
-    pitch += (w[1] * cr - w[2] * sr) * dt;
+    roll += (w[0] + (w[1] * sr + w[2] * cr) * tp - bias_roll) * dt;
+    pitch += (w[1] * cr - w[2] * sr - bias_pitch) * dt;
     if ((fresh && accel_ok_) || !has_speed_)
     {
       const double k = std::min(1.0, dt / tau_);
-      roll += k * (roll_g - roll);
-      pitch += k * (pitch_g - pitch);
+      const double e_roll = roll_g - roll, e_pitch = pitch_g - pitch;
+      roll += k * e_roll;
+      pitch += k * e_pitch;
+      const double ki = dt / (4.0 * tau_ * tau_);
+      bias_roll = std::min(std::max(bias_roll - ki * e_roll, -max_bias_), max_bias_);
+      bias_pitch = std::min(std::max(bias_pitch - ki * e_pitch, -max_bias_), max_bias_);
     }
   }
 
 private:
-  double tau_, max_accel_, speed_timeout_;
+  double tau_, max_accel_, speed_timeout_, max_bias_;
+  double lever_[3] = { 0.0, 0.0, 0.0 };
   bool has_t_ = false, started_ = false, has_speed_ = false, accel_ok_ = false;
   double t_ = 0.0, speed_t_ = 0.0, speed_v_ = 0.0, accel_ = 0.0;
 };
@@ -377,8 +395,11 @@ struct Heightfield
 // range outside [rmin, min(rmax, max_range)] or not finite are not tested (false).
 inline std::vector<char> demGround(const Heightfield& hf, const double pos[3], const double R[9],
                                    const std::vector<float>& ranges, double angle_min, double inc, double rmin,
-                                   double rmax, double max_range, double tolerance, int* count = nullptr)
+                                   double rmax, double max_range, double tolerance, int* count = nullptr,
+                                   double per_metre = 0.0, double slack = 0.0,
+                                   double cap = std::numeric_limits<double>::infinity())
 {
+  const double e = 0.25;  // local_layer.GRADIENT_STEP
   std::vector<char> out(ranges.size(), 0);
   const double top = std::min(rmax, max_range);
   int n = 0;
@@ -392,7 +413,14 @@ inline std::vector<char> demGround(const Heightfield& hf, const double pos[3], c
     const double x = pos[0] + (R[0] * c + R[1] * s) * r;
     const double y = pos[1] + (R[3] * c + R[4] * s) * r;
     const double zz = pos[2] + (R[6] * c + R[7] * s) * r;
-    if (std::fabs(zz - hf.height(x, y)) <= tolerance)
+    double tol = tolerance + per_metre * r;
+    if (slack > 0.0)
+    {
+      const double gx = (hf.height(x + e, y) - hf.height(x - e, y)) / (2.0 * e);
+      const double gy = (hf.height(x, y + e) - hf.height(x, y - e)) / (2.0 * e);
+      tol += slack * std::hypot(gx, gy);
+    }
+    if (std::fabs(zz - hf.height(x, y)) <= std::min(tol, cap))
     {
       out[i] = 1;
       ++n;
@@ -416,7 +444,7 @@ struct Params
          warning_margin = 0.8, creep_speed = 0.3, creep_margin = 0.45, scan_period = 0.1, scan_timeout = 0.35,
          max_scan_age = 0.25, max_future = 0.05, state_timeout = 0.2, blind_fraction = 0.5, clear_time = 1.0,
          release_accel = 0.5, stop_speed = 0.1, stop_brake = 1.0, slope_unknown = 0.15, slope_tau = 4.0,
-         imu_timeout = 0.5, zone_sigmas = 2.0, max_position_sd = 1.0, pose_timeout = 0.3;
+         slope_smoothing = 1.0, imu_timeout = 0.5, zone_sigmas = 2.0, max_position_sd = 1.0, pose_timeout = 0.3;
   std::vector<Point> zone;
 };
 
@@ -448,7 +476,10 @@ struct Setpoint
 class Guard
 {
 public:
-  Guard(const Params& p, const Vehicle& v) : p_(p), v_(v), fp_(v.body.grown(p.padding)), scans_(p.scanners.size())
+  // ``terrain``: the DEM in the map frame if known (the braking slope), or null; it must outlive the guard
+  Guard(const Params& p, const Vehicle& v, const Heightfield* terrain = nullptr)
+    : p_(p), v_(v), fp_(v.body.grown(p.padding)), scans_(p.scanners.size()),
+      terrain_(terrain != nullptr && !terrain->empty() ? terrain : nullptr)
   {
   }
 
@@ -469,8 +500,13 @@ public:
     state_v_ = speed;
     state_h_ = handlebar;
   }
+  // the pitch, low-passed over slope_smoothing (guard.py)
   void onPitch(double stamp, double pitch)
   {
+    if (has_slope_ && stamp > slope_t_ && p_.slope_smoothing > 0.0)
+      pitch = slope_p_ + std::min(1.0, (stamp - slope_t_) / p_.slope_smoothing) * (pitch - slope_p_);
+    else if (has_slope_ && stamp <= slope_t_)
+      return;
     has_slope_ = true;
     slope_t_ = stamp;
     slope_p_ = pitch;
@@ -503,6 +539,24 @@ public:
     return true;
   }
 
+  // The DEM's mean downhill grade along the motion over the stopping distance (guard.py's dem_slope)
+  bool demSlope(double now, int direction, double speed, double reaction, double& out) const
+  {
+    if (terrain_ == nullptr || !has_pose_ || now - pose_.stamp > p_.pose_timeout)
+      return false;
+    const double c = direction * std::cos(pose_.yaw), sn = direction * std::sin(pose_.yaw);
+    double slope = 0.0;
+    for (int i = 0; i < 2; ++i)
+    {
+      const double d =
+          std::max(stoppingDistance(speed, reaction, effectiveDecel(p_.brake_decel, slope)) + p_.margin, p_.step);
+      const double h0 = terrain_->height(pose_.x, pose_.y), h1 = terrain_->height(pose_.x + c * d, pose_.y + sn * d);
+      slope = std::atan2(h0 - h1, d);
+    }
+    out = slope;
+    return true;
+  }
+
   // ------------------------------------------------------------ decide
   Decision decide(double now, double req_speed, double req_handlebar)
   {
@@ -526,9 +580,14 @@ public:
       d.direction = direction;
       return enter(d);
     }
-    double pitch_v = 0.0;
-    const double slope = pitch(now, pitch_v) ? direction * pitch_v : p.slope_unknown;
     const double v = std::fabs(v_m);
+    double slope = 0.0;
+    if (direction == 0 || !demSlope(now, direction, std::max(v, std::fabs(req_speed)), p.brake_latency + p.scan_period,
+                                    slope))
+    {
+      double pitch_v = 0.0;
+      slope = pitch(now, pitch_v) ? direction * pitch_v : p.slope_unknown;
+    }
     if (direction == 0)
     {
       const bool held = mode_ == STOP || mode_ == HOLD || mode_ == FAULT;
@@ -848,6 +907,7 @@ private:
   Vehicle v_;
   Footprint fp_;
   std::vector<ScanState> scans_;
+  const Heightfield* terrain_;
   bool has_state_ = false, has_slope_ = false, has_pose_ = false;
   double state_t_ = 0.0, state_v_ = 0.0, state_h_ = 0.0, slope_t_ = 0.0, slope_p_ = 0.0;
   PoseState pose_;
@@ -875,8 +935,9 @@ struct Config
   Vehicle vehicle;
   double wheel_radius = 0.0;
   double imu_rpy[3] = { 0.0, 0.0, 0.0 };
+  double imu_xyz[3] = { 0.0, 0.0, 0.0 };
   std::string base_frame = "base_link";
-  double request_timeout = 0.25, ground_tolerance = 0.15;
+  double request_timeout = 0.25, ground_tolerance = 0.15, ground_position_sigmas = 2.0, ground_tolerance_max = 0.3;
   Heightfield terrain;
 };
 
@@ -905,6 +966,7 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "stop_brake", &c.params.stop_brake },
     { "slope_unknown", &c.params.slope_unknown },
     { "slope_tau", &c.params.slope_tau },
+    { "slope_smoothing", &c.params.slope_smoothing },
     { "imu_timeout", &c.params.imu_timeout },
     { "zone_sigmas", &c.params.zone_sigmas },
     { "max_position_sd", &c.params.max_position_sd },
@@ -958,12 +1020,18 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     }
     else if (std::sscanf(line, "imu_rpy %lf %lf %lf", &x[0], &x[1], &x[2]) == 3)
       std::copy(x, x + 3, c.imu_rpy);
+    else if (std::sscanf(line, "imu_xyz %lf %lf %lf", &x[0], &x[1], &x[2]) == 3)
+      std::copy(x, x + 3, c.imu_xyz);
     else if (std::sscanf(line, "node base_frame %255s", a) == 1)
       c.base_frame = a;
     else if (std::sscanf(line, "node request_timeout %lf", &x[0]) == 1)
       c.request_timeout = x[0];
     else if (std::sscanf(line, "node ground_tolerance %lf", &x[0]) == 1)
       c.ground_tolerance = x[0];
+    else if (std::sscanf(line, "node ground_position_sigmas %lf", &x[0]) == 1)
+      c.ground_position_sigmas = x[0];
+    else if (std::sscanf(line, "node ground_tolerance_max %lf", &x[0]) == 1)
+      c.ground_tolerance_max = x[0];
     else if (std::sscanf(line, "terrain %d %d %lf %lf %lf", &c.terrain.rows, &c.terrain.cols, &x[0], &x[1], &x[2]) == 5)
     {
       Heightfield& hf = c.terrain;

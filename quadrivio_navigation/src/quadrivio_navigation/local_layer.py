@@ -55,6 +55,12 @@ class LocalLayerParams:
     ground_tolerance_per_m: float = param(0.02, lo=0.0, hi=0.2, unit="m/m",
                                           doc="...plus this per metre of range: the attitude's error (0.02: 1.1 deg) "
                                               "at the range where a braking vehicle's scan plane meets the ground")
+    ground_position_sigmas: float = param(
+        2.0, lo=0.0, hi=10.0, doc="...plus the DEM's gradient under the return times this many of the pose's "
+                                  "horizontal sds (the terrain under a return drawn from a pose that is off)")
+    ground_tolerance_max: float = param(
+        0.3, lo=0.0, hi=2.0, unit="m", doc="the ground tolerance never exceeds this: keep it under the scan plane's "
+                                           "height over the ground (0.57 m for the front laser)")
 
 
 class LocalLayer:
@@ -203,19 +209,36 @@ def scan_ground(ground: Callable[[np.ndarray, np.ndarray], np.ndarray], ranges, 
     return out
 
 
+GRADIENT_STEP = 0.25  # [m] half the span of the DEM's central differences (dem_ground's slack)
+
+
 def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position, rotation: np.ndarray,
-               tolerance: float, per_metre: float = 0.0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+               tolerance: float, per_metre: float = 0.0, slack: float = 0.0,
+               cap: float = math.inf) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """A ``ground(bearings, ranges)`` test for :meth:`LocalLayer.add_scan` from a DEM
     ``heights(x, y)`` [m] and the scanner's 3D pose in the map (``position`` (3,),
-    ``rotation`` 3 x 3): a return within ``tolerance + per_metre x range`` [m] of the
-    terrain is the ground (``per_metre``: the tangent of the attitude's error, which moves a
-    far return up or down by that much per metre of range)."""
+    ``rotation`` 3 x 3): a return within ``tolerance + per_metre x range + slack x |grad h|``
+    [m] of the terrain, at most ``cap``, is the ground.
+
+    ``per_metre``: the tangent of the attitude's error, which moves a far return up or down
+    by that much per metre of range. ``slack`` [m]: how far the pose may be off
+    horizontally (a few of its standard deviations): the terrain under a return is then
+    anywhere within that of where it is drawn, up to ``slack`` times the DEM's gradient
+    there (central differences over ``GRADIENT_STEP``) off in height. ``cap`` keeps the
+    tolerance below the scan plane's height over the ground, so that a person's legs stay
+    an obstacle however uncertain the pose."""
     pos = np.asarray(position, dtype=float)
 
     def ground(bearings: np.ndarray, ranges: np.ndarray) -> np.ndarray:
         d = np.stack([np.cos(bearings), np.sin(bearings), np.zeros_like(bearings)])
         pts = pos[:, None] + rotation @ d * ranges
-        return np.abs(pts[2] - heights(pts[0], pts[1])) <= tolerance + per_metre * ranges
+        tol = tolerance + per_metre * ranges
+        if slack > 0.0:
+            e = GRADIENT_STEP
+            gx = (heights(pts[0] + e, pts[1]) - heights(pts[0] - e, pts[1])) / (2.0 * e)
+            gy = (heights(pts[0], pts[1] + e) - heights(pts[0], pts[1] - e)) / (2.0 * e)
+            tol = tol + slack * np.hypot(gx, gy)
+        return np.abs(pts[2] - heights(pts[0], pts[1])) <= np.minimum(tol, cap)
     return ground
 
 

@@ -12,7 +12,9 @@ from the parameter server and writes on stdout, one item per line (floats as Pyt
     body <front> <rear> <left> <right>        the vehicle's rectangle about base_link [m]
     vehicle <wheelbase> <ratio> <max_rate> <wheel_radius>
     imu_rpy <roll> <pitch> <yaw>              the IMU's mount in base_link
-    node <name> <value>                       base_frame, request_timeout, ground_tolerance
+    imu_xyz <x> <y> <z>                       ...and its position (the attitude's lever arm)
+    node <name> <value>                       base_frame, request_timeout, ground_tolerance,
+                                              ground_position_sigmas, ground_tolerance_max
     terrain <rows> <cols> <res> <x0> <y0>     then rows x cols float64 heights (row-major,
                                               little-endian, row index growing with y)
     end
@@ -54,9 +56,13 @@ def emit(out: BinaryIO, p, node, vehicle, hf) -> None:
     lines.append(f"vehicle {vehicle.wheelbase!r} {st.ratio!r} {st.max_rate!r} {vehicle.wheel_radius!r}")
     rpy = vehicle.sensors["imu_link"].rpy if "imu_link" in vehicle.sensors else (0.0, 0.0, 0.0)
     lines.append("imu_rpy " + " ".join(repr(float(a)) for a in rpy))
+    xyz = vehicle.sensors["imu_link"].xyz if "imu_link" in vehicle.sensors else (0.0, 0.0, 0.0)
+    lines.append("imu_xyz " + " ".join(repr(float(a)) for a in xyz))
     lines.append(f"node base_frame {node.base_frame}")
     lines.append(f"node request_timeout {node.request_timeout!r}")
     lines.append(f"node ground_tolerance {node.ground_tolerance!r}")
+    lines.append(f"node ground_position_sigmas {node.ground_position_sigmas!r}")
+    lines.append(f"node ground_tolerance_max {node.ground_tolerance_max!r}")
     out.write(("\n".join(lines) + "\n").encode())
     if hf is not None:
         rows, cols = hf.z.shape

@@ -52,7 +52,7 @@ from quadrivio_runtime.ros.params import fatal, node_params, private_params, spl
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
 
-from ..attitude import Attitude
+from ..attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan, scan_points
 from ..local_layer import dem_ground, scan_ground, scanner_pose_3d
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \
@@ -88,11 +88,11 @@ class GuardNode:
     def __init__(self) -> None:
         p, self.node_params, self.vehicle, hf = guard_config(private_params(), rospy.get_name())
         self.p = p
-        self.core = Guard(p, self.vehicle)
-        self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
-        self.attitude = Attitude(p.slope_tau)
         self.heights = None if hf is None else hf.heights
-        self.pose = None  # (stamp, x, y, yaw) from localization/predicted
+        self.core = Guard(p, self.vehicle, self.heights)
+        self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
+        self.attitude = Attitude(p.slope_tau, lever=imu_lever(self.vehicle))
+        self.pose = None  # (stamp, x, y, yaw, horizontal sd) from localization/predicted
         self.ground_returns = 0
         self.lock = threading.Lock()
         self.inputs = input_guard(max_future=p.max_future)
@@ -122,16 +122,18 @@ class GuardNode:
         pose = self.pose
         if self.heights is None or pose is None or now - pose[0] > 0.5:
             return None
-        _, x, y, yaw = pose
+        _, x, y, yaw, sd = pose
         pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
                                  self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3])
-        ground = dem_ground(self.heights, pos, R, self.node_params.ground_tolerance)
+        n = self.node_params
+        ground = dem_ground(self.heights, pos, R, n.ground_tolerance, 0.0, n.ground_position_sigmas * sd,
+                            n.ground_tolerance_max)
         return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:
-            self.core = Guard(self.p, self.vehicle)
-            self.attitude = Attitude(self.p.slope_tau)
+            self.core = Guard(self.p, self.vehicle, self.heights)
+            self.attitude = Attitude(self.p.slope_tau, lever=imu_lever(self.vehicle))
             self.request = None
             self.last_action = None
 
@@ -172,7 +174,7 @@ class GuardNode:
             return
         sd = math.sqrt(max(c[0], c[7], 0.0))
         yaw = yaw_from_quaternion(q.x, q.y, q.z, q.w)
-        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw)
+        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw, sd)
         with self.lock:
             self.core.on_pose(m.header.stamp.to_sec(), p.x, p.y, yaw, sd)
 

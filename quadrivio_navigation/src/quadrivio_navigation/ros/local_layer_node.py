@@ -38,7 +38,7 @@ from quadrivio_runtime.ros.params import node_params, private_params, split_para
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
-from ..attitude import Attitude
+from ..attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan
 from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, dem_ground, scanner_pose_3d
 from .site_inputs import StaticFrames, scenario_terrain
@@ -56,8 +56,8 @@ class LocalLayerNode:
         self.layer = LocalLayer(self.p)
         self.lock = threading.Lock()
         self.inputs = input_guard()
-        self.pose = None  # (stamp, x, y, yaw)
-        self.attitude = Attitude()  # roll, pitch (the vehicle's own acceleration out)
+        self.pose = None  # (stamp, x, y, yaw, horizontal sd)
+        self.attitude = Attitude(lever=imu_lever(self.vehicle))  # roll, pitch (the vehicle's own acceleration out)
         self.update_ms = []  # recent update times [ms]
         self.heights = scenario_terrain("local obstacle layer (returns on the terrain are the ground)",
                                         self.node_params.terrain_from_scenario)
@@ -83,11 +83,12 @@ class LocalLayerNode:
             self.pose = None
 
     def _on_pose(self, m: Odometry) -> None:
-        p, q = m.pose.pose.position, m.pose.pose.orientation
+        p, q, c = m.pose.pose.position, m.pose.pose.orientation, m.pose.covariance
         if not self.inputs.check("localization/predicted", m.header.stamp.to_sec(), rospy.get_time(), p.x, p.y,
-                                 q.z, q.w):
+                                 q.z, q.w, c[0], c[7]):
             return
-        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
+        sd = math.sqrt(max(c[0], c[7], 0.0))
+        self.pose = (m.header.stamp.to_sec(), p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w), sd)
 
     def _on_imu(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
@@ -122,7 +123,7 @@ class LocalLayerNode:
             self.inputs.reject(s.topic, "no transform", f"{self.node_params.base_frame} <- {s.frame} on /tf_static")
             return
         t0 = time.perf_counter()
-        _, x, y, yaw = pose
+        _, x, y, yaw, sd = pose
         t_b, R_b = mount
         c, sn = math.cos(yaw), math.sin(yaw)
         sx, sy = x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1]
@@ -137,7 +138,9 @@ class LocalLayerNode:
         if self.heights is not None:
             pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
                                      self.vehicle.wheel_radius, t_b, R_b)
-            ground = dem_ground(self.heights, pos, R, self.p.ground_tolerance, self.p.ground_tolerance_per_m)
+            lp = self.p
+            ground = dem_ground(self.heights, pos, R, lp.ground_tolerance, lp.ground_tolerance_per_m,
+                                lp.ground_position_sigmas * sd, lp.ground_tolerance_max)
         with self.lock:
             self.layer.add_scan(stamp, (sx, sy, heading), bearings, ranges, ground)
         self.update_ms.append(1e3 * (time.perf_counter() - t0))
