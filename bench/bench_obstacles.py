@@ -1,9 +1,12 @@
 """The obstacle guard, the local obstacle layer and replanning, over scenarios x seeds x speeds
 (issue: see and stop). Writes bench/results/obstacles.json and obstacles.md (the table).
 
-Every run goes through ``rosrun quadrivio experiment`` (the whole stack, free-running at
-``--rtf``), on a copy of each scenario with the follower's speed set (2 and 3 m/s by
-default) and the seed given:
+Every scenario runs on a copy with the follower's speed set (2 and 3 m/s by default) and the
+seed given. The outcomes (collisions, clearance, stops, completion) come from the closed loop
+in one process (``quadrivio.closed_loop``, deterministic, 2 local workers: 10 seeds of every
+scenario in minutes; ``--runner ros`` runs them through ``rosrun quadrivio experiment``
+instead, free-running at ``--rtf``); what only the ROS stack shows (the stop latency through
+the topics, the guard's CPU) comes from ROS runs at factor 1 (``--latency-seeds``):
 
 * with obstacles: person_on_path (a person stands on the figure eight, then walks away),
   orchard_crossing (a person crosses the lane 8 m ahead), orchard_blocked (a vehicle parked
@@ -15,15 +18,17 @@ Keys: ``obstacle_collisions`` (contacts over every run), ``obstacle_min_clearanc
 smallest true clearance of the runs with actors), ``obstacle_false_stops`` (protective
 stops with nothing in the field, in the runs without obstacles; ``obstacle_false_stops_all``
 over every run), ``obstacle_stop_latency_p99_ms`` (scan stamp to the guarded stop
-setpoint, every protective stop), ``obstacle_replan_completed`` (orchard_blocked runs that
+setpoint, every protective stop of the ROS runs at factor 1), ``obstacle_replan_completed`` (orchard_blocked runs that
 parked at the goal), ``laser_dropout_stop_s_max`` (the silent laser's last scan to the
 vehicle's standstill), ``zone_exits`` (runs whose true footprint left the zone);
 ``guard_cpu_frac`` (the guard's CPU seconds per simulated second in a factor-1 run of
 person_on_path; ``guard_cpu_frac_python``: the Python reference guard's in the same run again) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
 in this process, one update per scan).
 
-``--seeds N`` (default 10), ``--speeds 2,3``, ``--rtf`` (default 2), ``--only a,b``, ``--guard
-guard`` (the Python reference guard in the scenario runs; default guard_cpp).
+``--seeds N`` (default 10), ``--speeds 2,3``, ``--only a,b``, ``--runner in_process|ros``,
+``--workers`` (in process, default 2), ``--rtf`` (``--runner ros``, default 2), ``--guard
+guard`` (ROS runs: the Python reference guard; default guard_cpp), ``--latency-seeds N``
+(ROS runs at factor 1 of person_on_path and orchard_crossing at each speed, default 2).
 """
 import argparse
 import json
@@ -89,6 +94,39 @@ def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "", extra=()
     return m
 
 
+def run_in_process(job) -> dict:
+    """One run in one process (a pool worker): the metrics, and with a zone whether the true
+    footprint left it."""
+    path, seed, out, zone = job
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from quadrivio import closed_loop
+    from quadrivio.scenario import load_scenario
+
+    t0 = time.monotonic()
+    try:
+        s = load_scenario(path)
+        r = closed_loop.run(s, seed)
+        m = dict(closed_loop.write_run(r, s, seed, out))
+    except Exception as exc:  # one bad run is reported, the others go on
+        return {"failed": True, "error": f"{type(exc).__name__}: {exc}", "out": out}
+    if zone:
+        gt = r.run.ground_truth
+        m["zone_exit"] = footprint_left(zone, zip(gt["x"], gt["y"], gt["yaw"]))
+    m.update(out=out, wall_s=time.monotonic() - t0)
+    return m
+
+
+def footprint_left(zone, poses) -> bool:
+    """Whether the true (unpadded) footprint left the zone at any of ``poses`` (x, y, yaw)."""
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_navigation.guard import points_in_polygon
+
+    fp = Footprint.from_vehicle(load_vehicle())
+    poly = np.asarray(zone, dtype=float)
+    return any(not points_in_polygon(fp.corners(x, y, yaw), poly).all() for x, y, yaw in poses)
+
+
 def _watch_cpu(node: str, stop: threading.Event, out: dict) -> None:
     """The node's CPU seconds (user + system) from its first sample to its last."""
     tick = os.sysconf("SC_CLK_TCK")
@@ -140,30 +178,29 @@ def layer_update_ms(bag_path: str):
 
 
 def zone_exit(out: str, zone) -> bool:
-    """Whether the true (unpadded) footprint left the zone at any ground-truth sample."""
+    """Whether the true footprint of a ROS run (its bag) left the zone."""
     import rosbag
 
     from quadrivio_description.frames import yaw_from_quaternion
-    from quadrivio_description.vehicle import load_vehicle
-    from quadrivio_navigation.costmap import Footprint
-    from quadrivio_navigation.guard import points_in_polygon
 
-    fp = Footprint.from_vehicle(load_vehicle())
-    poly = np.asarray(zone, dtype=float)
     with rosbag.Bag(os.path.join(out, "run.bag")) as bag:
-        for _, m, _ in bag.read_messages(topics=["/ground_truth/odom"]):
-            p, q = m.pose.pose.position, m.pose.pose.orientation
-            c = fp.corners(p.x, p.y, yaw_from_quaternion(q.x, q.y, q.z, q.w))
-            if not points_in_polygon(c, poly).all():
-                return True
-    return False
+        poses = [(m.pose.pose.position.x, m.pose.pose.position.y,
+                  yaw_from_quaternion(m.pose.pose.orientation.x, m.pose.pose.orientation.y,
+                                      m.pose.pose.orientation.z, m.pose.pose.orientation.w))
+                 for _, m, _ in bag.read_messages(topics=["/ground_truth/odom"])]
+    return footprint_left(zone, poses)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--speeds", default="2,3")
-    ap.add_argument("--rtf", type=float, default=2.0)
+    ap.add_argument("--runner", choices=("in_process", "ros"), default="in_process",
+                    help="how the outcome runs go: one process each (default) or the ROS stack")
+    ap.add_argument("--workers", type=int, default=2, help="in process: parallel runs")
+    ap.add_argument("--latency-seeds", type=int, default=2,
+                    help="ROS runs at factor 1 per speed of person_on_path and orchard_crossing (latency)")
+    ap.add_argument("--rtf", type=float, default=2.0, help="--runner ros: the outcome runs' factor")
     ap.add_argument("--only", default="", help="comma-separated scenario names")
     ap.add_argument("--guard", choices=("guard_cpp", "guard"), default="guard_cpp",
                     help="the guard of the scenario runs (the CPU runs measure both)")
@@ -174,44 +211,78 @@ def main() -> None:
     os.makedirs(args.out, exist_ok=True)
     runs = []
     t_start = time.monotonic()
-    total = len(names) * len(speeds) * args.seeds
-    k = 0
+    from quadrivio.scenario import load_scenario
+
+    zone = load_scenario("zone_edge").data["guard"]["zone"]
+    jobs = []
     for name in names:
         for speed in speeds:
             path = variant(name, speed, args.out)
             for seed in range(args.seeds):
-                k += 1
                 out = os.path.join(args.out, f"{name}_{speed:g}_s{seed}")
-                m = run(path, seed, out, args.rtf, extra=["--guard", args.guard])
+                jobs.append((name, speed, seed, path, out))
+    total = len(jobs)
+
+    def report(k, name, speed, seed, m):
+        print(f"[bench obstacles] {k}/{total} {name} {speed:g} m/s seed {seed}: "
+              f"{'FAILED ' + str(m.get('error', '')) if m.get('failed') else 'completed' if m.get('completed') else 'not completed'}, "
+              f"collisions {m.get('collisions')}, clearance {m.get('min_clearance_m')}, "
+              f"stops {m.get('protective_stops')} (false {m.get('false_stops')}), "
+              f"{time.monotonic() - t_start:.0f} s", flush=True)
+
+    if args.runner == "in_process":
+        import multiprocessing
+
+        with multiprocessing.get_context("spawn").Pool(args.workers, maxtasksperchild=4) as pool:
+            work = [(path, seed, out, zone if name == "zone_edge" else None) for name, speed, seed, path, out in jobs]
+            for k, m in enumerate(pool.imap(run_in_process, work), 1):
+                name, speed, seed = jobs[k - 1][:3]
                 m.update(scenario=name, speed=speed, seed=seed)
                 runs.append(m)
-                print(f"[bench obstacles] {k}/{total} {name} {speed:g} m/s seed {seed}: "
-                      f"{'FAILED' if m.get('failed') else 'completed' if m.get('completed') else 'not completed'}, "
-                      f"collisions {m.get('collisions')}, clearance {m.get('min_clearance_m')}, "
-                      f"stops {m.get('protective_stops')} (false {m.get('false_stops')}), "
-                      f"{time.monotonic() - t_start:.0f} s", flush=True)
+                report(k, name, speed, seed, m)
+    else:
+        for k, (name, speed, seed, path, out) in enumerate(jobs, 1):
+            m = run(path, seed, out, args.rtf, extra=["--guard", args.guard])
+            m.update(scenario=name, speed=speed, seed=seed)
+            if name == "zone_edge" and not m.get("failed"):
+                m["zone_exit"] = zone_exit(out, zone)
+            runs.append(m)
+            report(k, name, speed, seed, m)
+    # the stop latency through the topics: ROS runs at factor 1
+    latency_runs = []
+    if args.latency_seeds > 0:
+        for name in ("person_on_path", "orchard_crossing"):
+            if name not in names:
+                continue
+            for speed in speeds:
+                for seed in range(args.latency_seeds):
+                    out = os.path.join(args.out, f"latency_{name}_{speed:g}_s{seed}")
+                    m = run(variant(name, speed, args.out), seed, out, 1.0, extra=["--guard", args.guard])
+                    latency_runs.append(m)
+                    print(f"[bench obstacles] latency run {name} {speed:g} m/s seed {seed}: "
+                          f"{'FAILED' if m.get('failed') else m.get('stop_latencies_ms')}", flush=True)
     ok = [r for r in runs if not r.get("failed")]
-    result = {"machine": machine(), "seeds": args.seeds, "speeds": speeds, "rtf": args.rtf, "guard": args.guard,
-              "runs": len(runs),
-              "runs_failed": len(runs) - len(ok)}
+    result = {"machine": machine(), "seeds": args.seeds, "speeds": speeds, "runner": args.runner,
+              "rtf": args.rtf if args.runner == "ros" else None, "guard": args.guard, "runs": len(runs),
+              "runs_failed": len(runs) - len(ok), "wall_s": time.monotonic() - t_start}
     result["obstacle_collisions"] = int(sum(r.get("collisions") or 0 for r in ok))
     clear = [r["min_clearance_m"] for r in ok if r["scenario"] in WITH and r.get("min_clearance_m") is not None]
     result["obstacle_min_clearance_m"] = float(min(clear)) if clear else None
     result["obstacle_false_stops"] = int(sum(r.get("false_stops") or 0 for r in ok if r["scenario"] in WITHOUT))
     result["obstacle_false_stops_all"] = int(sum(r.get("false_stops") or 0 for r in ok))
-    lat = [x for r in ok for x in (r.get("stop_latencies_ms") or [])]
+    result["obstacle_protective_stops"] = int(sum(r.get("protective_stops") or 0 for r in ok))
+    lat_from = [r for r in latency_runs if not r.get("failed")] if args.runner == "in_process" else ok
+    lat = [x for r in lat_from for x in (r.get("stop_latencies_ms") or [])]
     result["obstacle_stop_latency_p99_ms"] = float(np.percentile(lat, 99)) if lat else None
     result["obstacle_stop_latency_max_ms"] = float(max(lat)) if lat else None
-    result["obstacle_protective_stops"] = len(lat)
+    result["obstacle_stop_latency_stops"] = len(lat)
+    result["obstacle_stop_latency_rtf"] = 1.0 if args.runner == "in_process" else args.rtf
     blocked = [r for r in runs if r["scenario"] == "orchard_blocked"]
     if blocked:
         result["obstacle_replan_completed"] = float(np.mean([bool(r.get("completed")) for r in blocked]))
     zoned = [r for r in ok if r["scenario"] == "zone_edge"]
     if zoned:
-        from quadrivio.scenario import load_scenario
-
-        zone = load_scenario("zone_edge").data["guard"]["zone"]
-        result["zone_exits"] = int(sum(zone_exit(r["out"], zone) for r in zoned))
+        result["zone_exits"] = int(sum(bool(r.get("zone_exit")) for r in zoned))
         result["zone_stops"] = int(sum(r.get("zone_stops") or 0 for r in zoned))
     dropout = [r for r in ok if r["scenario"] == "laser_dropout"]
     if dropout:
