@@ -5,25 +5,20 @@ one-process closed loop runs) against the C++ core the roscpp predictor runs
 equal to 1e-9."""
 
 import math
-import os
 import subprocess
 
 import numpy as np
 import pytest
 
 from quadrivio_localization.predictor import Predictor, PredictorParams, predicted
+from quadrivio_runtime.workspace import built_executable
 
 
 def _replay_binary():
-    here = os.path.dirname(os.path.abspath(__file__))
-    root = os.path.dirname(os.path.dirname(here))
-    candidates = [os.path.join(p, "lib", "quadrivio_localization", "predictor_replay")
-                  for p in os.environ.get("CMAKE_PREFIX_PATH", "").split(":") if p]
-    candidates.append(os.path.join(root, ".ws", "devel", "lib", "quadrivio_localization", "predictor_replay"))
-    for c in candidates:
-        if os.access(c, os.X_OK):
-            return c
-    pytest.fail("predictor_replay not built (make setup builds the workspace)")
+    path = built_executable("quadrivio_localization", "predictor_replay")
+    if path is None:
+        pytest.fail("predictor_replay not built (make setup builds the workspace)")
+    return path
 
 
 def _life(rng, n: int):

@@ -8,7 +8,6 @@ point, setpoint, the stop counters and the reason's text) must match the Python 
 """
 import io
 import math
-import os
 import subprocess
 
 import numpy as np
@@ -23,6 +22,7 @@ from quadrivio_navigation.local_layer import dem_ground
 from quadrivio_navigation.ros.guard_config import emit
 from quadrivio_description.frames import rpy_matrix
 from quadrivio_terrain.terrain import Heightfield
+from quadrivio_runtime.workspace import built_executable
 
 
 class NodeParamsStub:
@@ -31,15 +31,10 @@ class NodeParamsStub:
 
 
 def _replay_binary():
-    here = os.path.dirname(os.path.abspath(__file__))
-    root = os.path.dirname(os.path.dirname(here))
-    candidates = [os.path.join(p, "lib", "quadrivio_navigation", "guard_replay")
-                  for p in os.environ.get("CMAKE_PREFIX_PATH", "").split(":") if p]
-    candidates.append(os.path.join(root, ".ws", "devel", "lib", "quadrivio_navigation", "guard_replay"))
-    for c in candidates:
-        if os.access(c, os.X_OK):
-            return c
-    pytest.fail("guard_replay not built (make setup builds the workspace)")
+    path = built_executable("quadrivio_navigation", "guard_replay")
+    if path is None:
+        pytest.fail("guard_replay not built (make setup builds the workspace)")
+    return path
 
 
 def _config(p, vehicle, hf=None) -> bytes:

@@ -159,8 +159,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.fields import ScanError, check_scan, scan_points
     from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route
     from quadrivio_navigation.guard import FAULT, HOLD, STOP, Guard, GuardNodeParams, GuardParams, load_zone_file
-    from quadrivio_navigation.local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, dem_ground,
-                                                  scan_ground, scanner_pose_3d)
+    from quadrivio_navigation.local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_ground,
+                                                  scan_in_map, terrain_ground)
     from quadrivio_navigation.maps import OccupancyGrid as Grid
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
@@ -395,22 +395,15 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         t_b, R_b = mounts[frame_]
         # the local layer (with a fresh pose)
         if layer is not None and pose is not None and t - pose[0] <= 0.5:
-            _, x, y, yaw = pose[:4]
-            c, sn = math.cos(yaw), math.sin(yaw)
-            sx, sy = x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1]
-            heading = yaw + math.atan2(R_b[1, 0], R_b[0, 0])
-            bearings = smp.angle_min + smp.angle_increment * np.arange(len(ranges))
-            if R_b[2, 2] < 0.0:
-                bearings = -bearings
-            rr = np.asarray(ranges, dtype=float)
-            rr = np.where(np.isfinite(rr) & ((rr < smp.range_min) | (rr > smp.range_max)), np.nan, rr)
+            sensor, bearings, rr = scan_in_map(*pose[1:4], t_b, R_b, smp.angle_min, smp.angle_increment, ranges,
+                                               smp.range_min, smp.range_max)
             ground = None
             if l_heights is not None:
-                pos3, R3 = scanner_pose_3d(l_heights, x, y, yaw, l_att.roll, l_att.pitch, v.wheel_radius, t_b, R_b)
                 lp = layer.p
-                ground = dem_ground(l_heights, pos3, R3, lp.ground_tolerance, lp.ground_tolerance_per_m,
-                                    lp.ground_position_sigmas * pose[5], lp.ground_tolerance_max)
-            layer.add_scan(stamp, (sx, sy, heading), bearings, rr, ground)
+                ground = terrain_ground(l_heights, pose[1:4] + (pose[5],), l_att.roll, l_att.pitch, v.wheel_radius,
+                                        t_b, R_b, lp.ground_tolerance, lp.ground_tolerance_per_m,
+                                        lp.ground_position_sigmas, lp.ground_tolerance_max)
+            layer.add_scan(stamp, sensor, bearings, rr, ground)
         if sc is None:
             return
         if t - stamp > gp.max_scan_age:
@@ -418,12 +411,11 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             return
         rr = ranges
         if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
-            _, x, y, yaw = pose[:4]
-            pos3, R3 = scanner_pose_3d(g_heights, x, y, yaw, g_att.roll, g_att.pitch, v.wheel_radius, t_b, R_b)
-            gr = scan_ground(dem_ground(g_heights, pos3, R3, gnode.ground_tolerance, 0.0,
-                                        gnode.ground_position_sigmas * pose[5], gnode.ground_tolerance_max),
-                             ranges, smp.angle_min,
-                             smp.angle_increment, smp.range_min, smp.range_max, MAX_RANGE)
+            ground = terrain_ground(g_heights, pose[1:4] + (pose[5],), g_att.roll, g_att.pitch, v.wheel_radius, t_b,
+                                    R_b, gnode.ground_tolerance, 0.0, gnode.ground_position_sigmas,
+                                    gnode.ground_tolerance_max)
+            gr = scan_ground(ground, ranges, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
+                             MAX_RANGE)
             if gr.any():
                 rr = np.where(gr, np.inf, np.asarray(ranges, dtype=float))
         yaw_b = math.atan2(R_b[1, 0], R_b[0, 0])

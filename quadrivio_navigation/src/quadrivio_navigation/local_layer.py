@@ -242,6 +242,34 @@ def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position
     return ground
 
 
+def terrain_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], pose, roll: float, pitch: float,
+                   wheel_radius: float, t_b, R_b, tolerance: float, per_metre: float, sigmas: float,
+                   cap: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """The ground test (:func:`dem_ground`) of a scan from a scanner mounted at ``t_b``,
+    ``R_b`` (base_link) on a vehicle at ``pose`` (x, y, yaw, horizontal sd of the position)
+    with ``roll`` and ``pitch``: the slack is ``sigmas`` of that sd. The guard and the layer
+    (their nodes and the one-process loop) all call this."""
+    x, y, yaw, sd = pose
+    pos, R = scanner_pose_3d(heights, x, y, yaw, roll, pitch, wheel_radius, t_b, R_b)
+    return dem_ground(heights, pos, R, tolerance, per_metre, sigmas * sd, cap)
+
+
+def scan_in_map(x: float, y: float, yaw: float, t_b, R_b, angle_min: float, angle_increment: float, ranges,
+                range_min: float, range_max: float):
+    """A scan for :meth:`LocalLayer.add_scan` from a vehicle at (x, y, yaw) (map): the
+    scanner's planar pose (x, y, heading), the bearings (turned the other way for a scanner
+    mounted upside down) and the ranges with returns outside [range_min, range_max] made
+    NaN (REP 117's +-inf kept)."""
+    c, sn = math.cos(yaw), math.sin(yaw)
+    sensor = (x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1], yaw + math.atan2(R_b[1][0], R_b[0][0]))
+    r = np.asarray(ranges, dtype=float)
+    bearings = angle_min + angle_increment * np.arange(len(r))
+    if R_b[2][2] < 0.0:  # mounted upside down: its angles turn the other way
+        bearings = -bearings
+    r = np.where(np.isfinite(r) & ((r < range_min) | (r > range_max)), np.nan, r)
+    return sensor, bearings, r
+
+
 @dataclass(frozen=True)
 class LocalLayerNodeParams:
     """The layer node's own parameters (``config/local_layer.yaml``, beside :class:`LocalLayerParams`)."""

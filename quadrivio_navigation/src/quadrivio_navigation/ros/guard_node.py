@@ -54,7 +54,7 @@ from quadrivio_plc.msg import Setpoint, VehicleState
 
 from ..attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan, scan_points
-from ..local_layer import dem_ground, scan_ground, scanner_pose_3d
+from ..local_layer import scan_ground, terrain_ground
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \
     load_zone_file
 from ..msg import GuardStatus
@@ -122,12 +122,10 @@ class GuardNode:
         pose = self.pose
         if self.heights is None or pose is None or now - pose[0] > 0.5:
             return None
-        _, x, y, yaw, sd = pose
-        pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
-                                 self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3])
         n = self.node_params
-        ground = dem_ground(self.heights, pos, R, n.ground_tolerance, 0.0, n.ground_position_sigmas * sd,
-                            n.ground_tolerance_max)
+        ground = terrain_ground(self.heights, pose[1:], self.attitude.roll, self.attitude.pitch,
+                                self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3],
+                                n.ground_tolerance, 0.0, n.ground_position_sigmas, n.ground_tolerance_max)
         return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:

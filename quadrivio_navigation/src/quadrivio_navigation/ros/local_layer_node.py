@@ -25,7 +25,6 @@ import math
 import threading
 import time
 
-import numpy as np
 import rospy
 from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid, Odometry
@@ -40,7 +39,7 @@ from quadrivio_plc.msg import VehicleState
 
 from ..attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan
-from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, dem_ground, scanner_pose_3d
+from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_in_map, terrain_ground
 from .site_inputs import StaticFrames, scenario_terrain
 
 
@@ -125,24 +124,16 @@ class LocalLayerNode:
         t0 = time.perf_counter()
         _, x, y, yaw, sd = pose
         t_b, R_b = mount
-        c, sn = math.cos(yaw), math.sin(yaw)
-        sx, sy = x + c * t_b[0] - sn * t_b[1], y + sn * t_b[0] + c * t_b[1]
-        heading = yaw + math.atan2(R_b[1, 0], R_b[0, 0])
-        n = len(m.ranges)
-        bearings = m.angle_min + m.angle_increment * np.arange(n)
-        if R_b[2, 2] < 0.0:  # mounted upside down: its angles turn the other way
-            bearings = -bearings
-        ranges = np.asarray(m.ranges, dtype=float)
-        ranges = np.where(np.isfinite(ranges) & ((ranges < m.range_min) | (ranges > m.range_max)), np.nan, ranges)
+        sensor, bearings, ranges = scan_in_map(x, y, yaw, t_b, R_b, m.angle_min, m.angle_increment, m.ranges,
+                                               m.range_min, m.range_max)
         ground = None
         if self.heights is not None:
-            pos, R = scanner_pose_3d(self.heights, x, y, yaw, self.attitude.roll, self.attitude.pitch,
-                                     self.vehicle.wheel_radius, t_b, R_b)
             lp = self.p
-            ground = dem_ground(self.heights, pos, R, lp.ground_tolerance, lp.ground_tolerance_per_m,
-                                lp.ground_position_sigmas * sd, lp.ground_tolerance_max)
+            ground = terrain_ground(self.heights, (x, y, yaw, sd), self.attitude.roll, self.attitude.pitch,
+                                    self.vehicle.wheel_radius, t_b, R_b, lp.ground_tolerance,
+                                    lp.ground_tolerance_per_m, lp.ground_position_sigmas, lp.ground_tolerance_max)
         with self.lock:
-            self.layer.add_scan(stamp, (sx, sy, heading), bearings, ranges, ground)
+            self.layer.add_scan(stamp, sensor, bearings, ranges, ground)
         self.update_ms.append(1e3 * (time.perf_counter() - t0))
         del self.update_ms[:-200]
 
