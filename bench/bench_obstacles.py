@@ -28,7 +28,7 @@ in this process, one update per scan).
 ``--seeds N`` (default 10), ``--speeds 2,3``, ``--only a,b``, ``--runner in_process|ros``,
 ``--workers`` (in process, default 2), ``--rtf`` (``--runner ros``, default 2), ``--guard
 guard`` (ROS runs: the Python reference guard; default guard_cpp), ``--latency-seeds N``
-(ROS runs at factor 1 of person_on_path and orchard_crossing at each speed, default 2).
+(ROS runs at factor 1 of dog_runs_out and orchard_crossing at each speed, default 2).
 """
 import argparse
 import json
@@ -50,6 +50,7 @@ from common import RESULTS, machine, write_result  # noqa: E402
 
 WITH = ("person_on_path", "orchard_crossing", "dog_runs_out", "orchard_blocked", "laser_dropout", "zone_edge")
 WITHOUT = ("figure_eight", "orchard", "rough_terrain")
+LATENCY = ("dog_runs_out", "orchard_crossing")  # ROS runs at factor 1 for the stop latency
 
 
 def variant(name: str, speed: float, folder: str) -> str:
@@ -199,7 +200,7 @@ def main() -> None:
                     help="how the outcome runs go: one process each (default) or the ROS stack")
     ap.add_argument("--workers", type=int, default=2, help="in process: parallel runs")
     ap.add_argument("--latency-seeds", type=int, default=2,
-                    help="ROS runs at factor 1 per speed of person_on_path and orchard_crossing (latency)")
+                    help="ROS runs at factor 1 per speed of dog_runs_out and orchard_crossing (latency)")
     ap.add_argument("--rtf", type=float, default=2.0, help="--runner ros: the outcome runs' factor")
     ap.add_argument("--only", default="", help="comma-separated scenario names")
     ap.add_argument("--guard", choices=("guard_cpp", "guard"), default="guard_cpp",
@@ -251,7 +252,7 @@ def main() -> None:
     # the stop latency through the topics: ROS runs at factor 1
     latency_runs = []
     if args.latency_seeds > 0:
-        for name in ("person_on_path", "orchard_crossing"):
+        for name in LATENCY:  # where protective stops happen (the person on the path slows, it does not stop)
             if name not in names:
                 continue
             for speed in speeds:
