@@ -253,6 +253,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         l_att = Attitude(lever=lever)
         l_heights = heights if lnode.terrain_from_scenario else None
     goal = tuple(pathp.goal) if pathp.kind == "goal" else None
+    if layer is not None and goal is None and lnode.only_with_goal:
+        layer = None  # the planner has no goal: the node reads no scans (only_with_goal)
     if goal is not None and planner is None:
         raise ConfigError(f"{s.path}: path kind 'goal' needs a map (the map: section)")
     path_poses: Optional[np.ndarray] = None

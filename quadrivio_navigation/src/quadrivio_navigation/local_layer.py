@@ -280,3 +280,5 @@ class LocalLayerNodeParams:
     base_frame: str = param("base_link")
     terrain_from_scenario: bool = param(True, doc="returns on the scenario's known terrain are the ground")
     max_pose_age: float = param(0.5, lo=0.01, hi=10.0, unit="s", doc="a scan with no pose this fresh is dropped")
+    only_with_goal: bool = param(True, doc="read the scans only while the planner pursues a goal (planner/status "
+                                           "not IDLE): nothing else reads the layer")

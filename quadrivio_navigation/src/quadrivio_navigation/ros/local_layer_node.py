@@ -6,7 +6,10 @@ Parameters (private, ``config/local_layer.yaml``; a scenario's ``local_layer:`` 
 overrides): :class:`quadrivio_navigation.local_layer.LocalLayerParams`, ``~scanners`` (the
 guard's list: topic and frame), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
 ``~base_frame`` (base_link), ``~terrain_from_scenario`` (bool, true: with a scenario whose
-terrain is known, returns on it are the ground, not obstacles).
+terrain is known, returns on it are the ground, not obstacles), ``~only_with_goal`` (bool,
+true: the scanners are subscribed only while ``planner/status`` says the planner pursues a
+goal, i.e. is not IDLE; the planner is the layer's reader, and a path-following run spent
+0.14 CPU s per simulated second on a layer nobody read).
 
 Subscribes: the scanners' topics (sensor_msgs/LaserScan), ``localization/predicted``
 (nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu) and ``vehicle/state``
@@ -66,8 +69,14 @@ class LocalLayerNode:
         if self.heights is not None:
             rospy.Subscriber("imu/data", Imu, self._on_imu, queue_size=20)
             rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
-        for s in self.node_params.scanners:
-            rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
+        self.scan_subs = []
+        self.active = False
+        if self.node_params.only_with_goal:
+            from ..msg import PlannerStatus
+
+            rospy.Subscriber("planner/status", PlannerStatus, self._on_planner, queue_size=5)
+        else:
+            self._activate(True)
         self.pub = rospy.Publisher("local_obstacles", OccupancyGrid, queue_size=2)
         guarded_timer(1.0 / self.node_params.publish_rate, self._publish, "local obstacle grid")
         self.diag = diagnostics.updater()
@@ -75,6 +84,25 @@ class LocalLayerNode:
         self.diag.add("local obstacle layer", self._diagnose)
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         on_clock_jump(self._on_clock_jump)
+
+    def _activate(self, active: bool) -> None:
+        """Subscribe the scanners (or drop them: a LaserScan is parsed before any callback)."""
+        if active == self.active:
+            return
+        self.active = active
+        if active:
+            self.scan_subs = [rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
+                              for s in self.node_params.scanners]
+        else:
+            for sub in self.scan_subs:
+                sub.unregister()
+            self.scan_subs = []
+            with self.lock:
+                self.layer = LocalLayer(self.p)  # what it saw is old by the next goal
+        rospy.loginfo("local obstacle layer: %s", "reading the scans" if active else "idle: the planner has no goal")
+
+    def _on_planner(self, m) -> None:
+        self._activate(m.state != m.IDLE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:
@@ -156,6 +184,9 @@ class LocalLayerNode:
 
     def _diagnose(self, stat):
         ms = sorted(self.update_ms)
+        if not self.active:
+            stat.summary(DiagnosticStatus.OK, "idle: the planner has no goal")
+            return stat
         stat.summary(DiagnosticStatus.OK if self.pose is not None else DiagnosticStatus.WARN,
                      "updating" if self.pose is not None else "no pose yet")
         if ms:
