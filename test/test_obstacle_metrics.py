@@ -85,3 +85,23 @@ def test_contacts_count_with_body_and_speed():
     m = obstacle_metrics(run, V)
     assert m["collisions"] == 2
     assert m["collision_events"][0] == {"t": 3.2, "body": "bob", "kind": "person", "speed_mps": 1.9}
+
+
+def test_a_stop_the_vehicle_drove_into_counts_from_its_decision():
+    """The guard judged the 4.90 s scan twice without a stop (the obstacle in the warning
+    field), then a request's decision at 5.04 s found the vehicle in the protective field:
+    no scan showed it there, the latency runs from that decision (10 ms to the brake), not
+    140 ms from the scan (dog_runs_out, 2 m/s, seed 1, at factor 1)."""
+    gt = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
+    rows = [[4.94, 1, 0.3, 0.68, 0.64, 4.90, 1, 1.5, 0, 0.84, 0, 0], [4.95, 1, 0.3, 0.77, 0.56, 4.90, 1, 1.5, 0, 0.84, 0, 0],
+            [5.04, 2, 0.0, 0.67, 0.70, 4.90, 1, 1.5, 0, 0.95, 0, 0], [5.05, 2, 0.0, 1.3, 0.6, 5.00, 1, 1.5, 0, 0.9, 0, 0],
+            [5.5, 3, 0.0, 0.6, 0.3, 5.40, 1, 1.5, 0, 0.0, 0, 0]]
+    sp_t = np.array([4.95, 5.02, 5.05, 5.06])
+    setpoint = Series(sp_t, {"speed": np.array([0.3, 0.3, 0.0, 0.0]), "handlebar": np.zeros(4),
+                             "brake": np.array([0.0, 0.0, 1.0, 1.0])})
+    vehicle = Series(gt.t, {"speed": gt["vx"], "handlebar": np.zeros(len(gt))})
+    run = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                  vehicle=vehicle, guard=guard_series(rows), actors=person(5.0 + FP.front + 0.9, 0.0), contacts=[])
+    m = obstacle_metrics(run, V)
+    assert m["protective_stops"] == 1 and m["stops_entered_by_motion"] == 1
+    assert m["stop_latencies_ms"] == pytest.approx([10.0])

@@ -17,8 +17,15 @@
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
-  the obstacle to the first guarded setpoint with speed 0 and the brake that the recorder
-  received (the PLCClient forwards it on arrival);
+  the obstacle in the protective field to the first guarded setpoint with speed 0 and the
+  brake that the recorder received (the PLCClient forwards it on arrival). A stop decided
+  on a scan the guard had already judged without a stop (it showed the obstacle in the
+  warning field; the vehicle then drove into the protective one, and the guard's decision
+  on a later request found it there) has no such scan: its latency runs from that decision
+  (the request's period, 20 ms, is the most it can be late); counted in
+  ``stops_entered_by_motion``. Found on dog_runs_out: a dog seen 0.68-0.77 m along the path
+  in the warning field at 34.90 s, the vehicle measured 0.84 -> 0.95 m/s while its limit
+  fell to 0.3, the stop at 35.04 s on a request: 140 ms "after the scan";
 * ``stop_to_standstill_s``: for each stop (protective or fail-safe), from the decision to
   the measured wheel speed below 0.1 m/s.
 """
@@ -156,7 +163,7 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
     out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT and moving[i]))  # a stop, not a start-up
     out["zone_stops"] = int(sum(1 for i in entered if action[i] == STOP and g["zone"][i] == 1))
     fixed = map_points(run.map)
-    false, latencies = 0, []
+    false, latencies, by_motion = 0, [], 0
     sp = run.setpoint
     pad = Footprint.from_vehicle(vehicle, 0.15)
     for i in stops:
@@ -186,11 +193,16 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
                 false += 1
         scan = float(g["scan_stamp"][i])
         if len(sp) and math.isfinite(scan) and scan > 0.0:
-            after = np.flatnonzero((sp.t >= scan) & (sp["speed"] == 0.0) & (sp["brake"] >= 0.99))
+            start = scan
+            if np.any((g["scan_stamp"][:i] == scan) & (g["action"][:i] != STOP)):
+                start = float(g.t[i])  # judged before without a stop: the vehicle drove into the field
+                by_motion += 1
+            after = np.flatnonzero((sp.t >= start) & (sp["speed"] == 0.0) & (sp["brake"] >= 0.99))
             if len(after):
-                latencies.append(1e3 * (float(sp.t[after[0]]) - scan))
+                latencies.append(1e3 * (float(sp.t[after[0]]) - start))
     out["false_stops"] = false
     out["stop_latencies_ms"] = latencies
+    out["stops_entered_by_motion"] = by_motion
     # from each stop's decision (protective or fail-safe) to the vehicle's standstill
     standstill = []
     veh = run.vehicle
