@@ -203,3 +203,21 @@ def test_speed_is_read_against_its_limit():
     assert m["stack_efficiency"] == pytest.approx(2.5 / (2 / 0.6))  # 0.75 of the two cores
     assert cpu_metrics(None, 100.0, 40.0, 2) == {"stack_cpu_s_per_sim_s": None, "stack_efficiency": None}
     assert cpu_metrics(60.0, 100.0, None, 2)["stack_efficiency"] is None
+
+
+def test_a_replanned_route_counts_each_path_up_to_where_the_next_took_over():
+    """A replan starts where the vehicle is on the old path: the route is the old path up to
+    there and the new one whole, not the replan's length alone (a U-turn that replanned 12 m
+    before the goal was reported as a 12 m route)."""
+    from quadrivio.metrics import route_length
+
+    first = np.column_stack([np.linspace(0.0, 30.0, 301), np.zeros(301)])  # 30 m along y = 0
+    # replanned at x = 18.05 (between samples), around something: up 2 m, along, back down to x = 30
+    second = np.array([[18.05, 0.0], [20.0, 2.0], [28.0, 2.0], [30.0, 0.0]])
+    leg = math.hypot(1.95, 2.0) + 8.0 + math.hypot(2.0, 2.0)
+    assert route_length([first, second]) == pytest.approx(18.05 + leg)
+    # a third, from the second's middle; the path passing its own start again does not confuse it
+    third = np.array([[24.0, 2.0], [24.0, 6.0]])
+    assert route_length([first, second, third]) == pytest.approx(18.05 + math.hypot(1.95, 2.0) + 4.0 + 4.0)
+    assert route_length([first]) == pytest.approx(30.0)
+    assert route_length([first, np.zeros((0, 2))]) == pytest.approx(30.0)  # an empty path: no route after it

@@ -19,7 +19,8 @@ CONTRACT_KEYS = ("scenario", "seed", "completed", "sim_duration_s", "wall_durati
                  "loc_p95_m", "loc_max_m", "loc_heading_rmse_deg", "pred_rmse_m", "gps_rmse_m", "gps_fix_fraction",
                  "xte_rmse_m", "xte_max_m", "max_lateral_accel_mps2")
 # planned runs (a map and a goal): None in runs without them
-PLANNED_KEYS = ("goal_position_error_m", "goal_heading_error_deg", "collisions", "path_length_m", "plan_time_s")
+PLANNED_KEYS = ("goal_position_error_m", "goal_heading_error_deg", "collisions", "path_length_m", "plan_time_s",
+                "replans")
 
 
 @dataclass
@@ -190,10 +191,40 @@ def planned_metrics(run: RunData) -> Dict[str, object]:
     found = run.planner["state"] == 2 if len(run.planner) else np.zeros(0, bool)
     if found.any():  # the planner made the path (not a reference path's publisher)
         m["plan_time_s"] = float(run.planner["planning_time"][found][-1])
-        if run.path_poses is not None and len(run.path_poses) > 1:
-            p = run.path_poses
-            m["path_length_m"] = float(np.sum(np.hypot(np.diff(p[:, 0]), np.diff(p[:, 1]))))
+        if len(run.paths) > 1:
+            m["path_length_m"] = route_length([xy for _, xy in run.paths])
+        elif run.path_poses is not None and len(run.path_poses) > 1:
+            m["path_length_m"] = route_length([run.path_poses[:, :2]])
+        m["replans"] = max(len(run.paths) - 1, 0)
     return m
+
+
+def _arc_to_nearest(xy: np.ndarray, point) -> float:
+    """Arc length along the polyline ``xy`` to its point nearest ``point`` (the first such)."""
+    a, b = xy[:-1], xy[1:]
+    ab = b - a
+    seg = np.hypot(ab[:, 0], ab[:, 1])
+    u = np.clip(((point[0] - a[:, 0]) * ab[:, 0] + (point[1] - a[:, 1]) * ab[:, 1])
+                / np.maximum(seg ** 2, 1e-12), 0.0, 1.0)
+    d2 = (a[:, 0] + u * ab[:, 0] - point[0]) ** 2 + (a[:, 1] + u * ab[:, 1] - point[1]) ** 2
+    k = int(np.argmin(d2))
+    return float(np.sum(seg[:k]) + u[k] * seg[k])
+
+
+def route_length(paths: list) -> float:
+    """The length of the route a run was planned along: each path up to where the next one
+    (a replan, which starts from the vehicle's predicted pose on it) took over, then the last
+    path whole. A replan's own length alone would say a 60 m route was 12 m long."""
+    total = 0.0
+    for k, xy in enumerate(paths):
+        xy = np.asarray(xy, float)
+        if len(xy) < 2:
+            continue
+        if k + 1 < len(paths) and len(paths[k + 1]):
+            total += _arc_to_nearest(xy, np.asarray(paths[k + 1], float)[0])
+        else:
+            total += float(np.sum(np.hypot(np.diff(xy[:, 0]), np.diff(xy[:, 1]))))
+    return total
 
 
 def cpu_metrics(cpu_s: Optional[float], sim_s: Optional[float], wall_s: Optional[float],
