@@ -50,9 +50,14 @@ from .scenario import vehicle as scenario_vehicle
 
 MAX_RANGE = 20.0  # [m] the guard's: returns beyond cannot matter for its fields
 # The lattice's bound in place of its wall-clock budget, so that a run repeats (a scenario's
-# planner: lattice: max_expansions overrides it): about 3 s of this machine's single core,
-# where the orchard's first solution needs about 20000
-PLANNER_EXPANSIONS = 30000
+# planner: lattice: max_expansions overrides it): about 2 s of the native search on this
+# machine's single core. The orchard's searches reach eps 1 in 11 000-57 000; at 30 000 (the
+# Python search's 3 s) some starts ended on their eps-3 path, 64 m with 7 cusps, where the
+# vehicle was held between the trees
+PLANNER_EXPANSIONS = 300000
+# The wall-clock budget behind it: only the OMPL fallback of a wedged start uses it (it stops
+# at its first solution), and a start with no way out must not hold a campaign for minutes
+PLANNER_BUDGET = 60.0
 
 
 @dataclass
@@ -241,7 +246,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     pnode = _config(PlannerNodeParams, "quadrivio_navigation", "planner.yaml", s, None)
     plp = _config(PlannerParams, "quadrivio_navigation", "planner.yaml", s, "planner")
     plp = replace_nested(plp, {"lattice": {"max_expansions": plp.lattice.max_expansions or PLANNER_EXPANSIONS},
-                               "budget": 600.0}, "closed loop")
+                               "budget": PLANNER_BUDGET}, "closed loop")
     layer = None
     if sp.map.file:
         grid = load_map(sp.map.file, frame)

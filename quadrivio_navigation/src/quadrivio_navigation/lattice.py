@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable, Dict, List, Optional, Tuple
@@ -70,6 +71,8 @@ class LatticeParams:
                                                          "a fixed count makes the result independent of the machine")
     shortcuts: int = param(100, lo=0, hi=100000, doc="tries at replacing runs of primitives by one free, cheaper "
                                                      "Reeds-Shepp curve after the search (seeded; 0: none)")
+    native: bool = param(True, doc="search in the C++ core (src/lattice_core.cpp, about 100 times faster); "
+                                   "false: the Python reference it is cross-tested against")
 
 
 @dataclass
@@ -84,6 +87,14 @@ class SearchResult:
     expansions: int
     expanded: np.ndarray  # (M, 2) grid-frame positions of expanded states (for plots)
     epsilon: float  # bound of the returned path
+
+
+START = -3  # the exact start, joined to the lattice states around it by connectors
+
+
+def _fail(reason: str, expansions: int = 0, expanded: np.ndarray = np.zeros((0, 2))) -> SearchResult:
+    return SearchResult(False, reason, np.zeros((0, 3)), np.zeros(0, np.int8), math.inf, math.nan, [], expansions,
+                        expanded, math.inf)
 
 
 class _Prims:
@@ -175,6 +186,8 @@ class LatticePlanner:
             pr.bind(self.wp, self.w)
         self._graph = None
         self.overhead = self._turning_overhead()
+        self._handle = None  # the native search (_native): one plan at a time (it keeps the results)
+        self._native_lock = threading.Lock()
 
     def _turning_overhead(self, bins: int = OVERHEAD_BINS) -> List[float]:
         """Extra cost [m] of setting off towards a far goal with the heading ``alpha`` away
@@ -258,89 +271,29 @@ class LatticePlanner:
         deadline = t0 + budget
         n, res, w = self.n, self.res, self.w
 
-        def fail(reason: str, expansions: int = 0, expanded: np.ndarray = np.zeros((0, 2))) -> SearchResult:
-            return SearchResult(False, reason, np.zeros((0, 3)), np.zeros(0, np.int8), math.inf, math.nan, [],
-                                expansions, expanded, math.inf)
-
         sc = (int(math.floor(start[1] / res)), int(math.floor(start[0] / res)))
         gc = (int(math.floor(goal[1] / res)), int(math.floor(goal[0] / res)))
         sk = int(round(start[2] / TWO_PI * n)) % n
         gk = int(round(goal[2] / TWO_PI * n)) % n
         h2 = self.heuristic_2d(gc)
         if not math.isfinite(h2[sc[0] * w + sc[1]]):
-            return fail("goal unreachable: no passage as wide as the vehicle connects the start to the goal")
-        descent = self._descent_direction(h2).tolist()
-        h2 = h2.tolist()
+            return _fail("goal unreachable: no passage as wide as the vehicle connects the start to the goal")
+        descent = self._descent_direction(h2)
         rc = self.reverse_cost
+        r = self.r
+        thetas = [TWO_PI * k / n for k in range(n)]
 
         def shortest(a, b, radius):
             return curves.reeds_shepp(a, b, radius, rc) if self.reverse else curves.dubins(a, b, radius)
 
-        overhead = self.overhead
-        obins = len(overhead)
-        to_bin = obins / TWO_PI
-        gx, gy, gth = goal
-        r = self.r
-        nh_r2 = self.p.nh_radius ** 2
-        shot_r2 = self.p.shot_radius ** 2
-        thetas = [TWO_PI * k / n for k in range(n)]
-
-        def heur(s: int) -> Tuple[float, bool]:
-            """(h, exact): near the goal first a cheap lower bound (exact False), the
-            curve's cost only once the state reaches the top of OPEN (lazy evaluation)."""
-            cell, k = divmod(s, n)
-            hv = h2[cell]
-            row, col = divmod(cell, w)
-            x, y = (col + 0.5) * res, (row + 0.5) * res
-            d2 = (x - gx) ** 2 + (y - gy) ** 2
-            d = math.sqrt(d2)
-            if d2 <= nh_r2:
-                return (hv if hv > d else d), False
-            hv += overhead[int(round((thetas[k] - descent[cell]) * to_bin)) % obins]
-            return (hv if hv > d else d), True
-
-        def heur_exact(s: int) -> float:
-            cell, k = divmod(s, n)
-            row, col = divmod(cell, w)
-            v = curves.path_cost(shortest(((col + 0.5) * res, (row + 0.5) * res, thetas[k]), goal, r), rc)
-            hv = h2[cell]
-            return hv if hv > v else v
-
         start_state = (sc[0] * w + sc[1]) * n + sk
         goal_state = (gc[0] * w + gc[1]) * n + gk
-        GOAL = -1  # the exact goal, reached by an analytic expansion or from goal_state
-        START = -3  # the exact start, joined to the lattice states around it
         # reaching the goal's lattice state counts with what it would take to get from
         # there to the exact goal, so that an exact analytic expansion wins a tie
         snap = ((gc[1] + 0.5) * res, (gc[0] + 0.5) * res, TWO_PI * gk / n)
         snap_cost = curves.path_cost(shortest(snap, goal, self.r), rc)
         g: Dict[int, float] = {start_state: 0.0}
         parent: Dict[int, Tuple[int, int]] = {}  # state -> (parent state, primitive index or -1)
-        shots: Dict[int, Tuple[int, list]] = {}  # GOAL -> (parent state, segments)
-        eps = self.p.initial_epsilon
-        counter = 0
-        open_heap: List[Tuple[float, int, int]] = []
-        in_open: Dict[int, float] = {}
-        closed: set = set()
-        incons: set = set()
-        hcache: Dict[int, float] = {}
-        exact: set = set()
-
-        def hval(s: int) -> float:
-            v = hcache.get(s)
-            if v is None:
-                v, ex = heur(s)
-                hcache[s] = v
-                if ex:
-                    exact.add(s)
-            return v
-
-        def push(s: int) -> None:
-            nonlocal counter
-            f = g[s] + eps * hval(s)
-            in_open[s] = f
-            counter += 1
-            heapq.heappush(open_heap, (f, counter, s))
 
         # A start whose own lattice state (its cell's centre, its heading bin) collides joins
         # the lattice by collision-free curves to the states around it, as the goal does by
@@ -350,7 +303,7 @@ class LatticePlanner:
         connectors: Dict[int, list] = {}
         snapped = ((sc[1] + 0.5) * res, (sc[0] + 0.5) * res, thetas[sk])
         if self.cg.pose_cost(self.fp, *snapped) != LETHAL:  # the start's own state: as the search always did
-            push(start_state)
+            init = [start_state]
         else:
             root = START
             g = {START: 0.0}
@@ -379,10 +332,98 @@ class LatticePlanner:
                     if len(connectors) >= self.p.start_connectors:
                         break
             if not connectors:
-                return fail(f"no drivable path: no collision-free curve joins the start to the lattice within "
-                            f"{self.p.start_connect_radius} m")
-            for s2 in connectors:
-                push(s2)
+                return _fail(f"no drivable path: no collision-free curve joins the start to the lattice within "
+                             f"{self.p.start_connect_radius} m")
+            init = list(connectors)
+        max_exp = self.p.max_expansions or 10 ** 12
+        if self.p.native:
+            found = self._search_native(h2, descent, goal, goal_state, snap_cost, init, [g[s] for s in init], root,
+                                        start, connectors, deadline - time.perf_counter(), cancelled,
+                                        time.perf_counter() - t0)
+        else:
+            found = self._search_python(h2.tolist(), descent.tolist(), goal, goal_state, snap_cost, g, parent, root,
+                                        start, connectors, init, t0, deadline, cancelled)
+        return self._result(*found, max_exp, budget, start_state, cancelled)
+
+    def _heuristics(self, h2: list, descent: list, goal):
+        """``heur(s) -> (h, exact)`` and ``heur_exact(s)`` of one plan (see the module docstring)."""
+        n, res, w = self.n, self.res, self.w
+        rc, r = self.reverse_cost, self.r
+        overhead = self.overhead
+        obins = len(overhead)
+        to_bin = obins / TWO_PI
+        gx, gy, _ = goal
+        nh_r2 = self.p.nh_radius ** 2
+        thetas = [TWO_PI * k / n for k in range(n)]
+
+        def heur(s: int) -> Tuple[float, bool]:
+            """(h, exact): near the goal first a cheap lower bound (exact False), the
+            curve's cost only once the state reaches the top of OPEN (lazy evaluation)."""
+            cell, k = divmod(s, n)
+            hv = h2[cell]
+            row, col = divmod(cell, w)
+            x, y = (col + 0.5) * res, (row + 0.5) * res
+            d2 = (x - gx) ** 2 + (y - gy) ** 2
+            d = math.sqrt(d2)
+            if d2 <= nh_r2:
+                return (hv if hv > d else d), False
+            hv += overhead[int(round((thetas[k] - descent[cell]) * to_bin)) % obins]
+            return (hv if hv > d else d), True
+
+        def heur_exact(s: int) -> float:
+            cell, k = divmod(s, n)
+            row, col = divmod(cell, w)
+            a = ((col + 0.5) * res, (row + 0.5) * res, thetas[k])
+            segs = curves.reeds_shepp(a, goal, r, rc) if self.reverse else curves.dubins(a, goal, r)
+            v = curves.path_cost(segs, rc)
+            hv = h2[cell]
+            return hv if hv > v else v
+
+        return heur, heur_exact
+
+    def _search_python(self, h2, descent, goal, goal_state, snap_cost, g, parent, root, start, connectors,
+                       push_order, t0, deadline, cancelled):
+        """ARA*'s passes in Python: the reference the native search is tested against."""
+        n, res, w = self.n, self.res, self.w
+        rc = self.reverse_cost
+        gx, gy, gth = goal
+        r = self.r
+        shot_r2 = self.p.shot_radius ** 2
+        thetas = [TWO_PI * k / n for k in range(n)]
+        heur, heur_exact = self._heuristics(h2, descent, goal)
+
+        def shortest(a, b, radius):
+            return curves.reeds_shepp(a, b, radius, rc) if self.reverse else curves.dubins(a, b, radius)
+
+        GOAL = -1
+        shots: Dict[int, Tuple[int, list]] = {}
+        eps = self.p.initial_epsilon
+        counter = 0
+        open_heap: List[Tuple[float, int, int]] = []
+        in_open: Dict[int, float] = {}
+        closed: set = set()
+        incons: set = set()
+        hcache: Dict[int, float] = {}
+        exact: set = set()
+
+        def hval(s: int) -> float:
+            v = hcache.get(s)
+            if v is None:
+                v, ex = heur(s)
+                hcache[s] = v
+                if ex:
+                    exact.add(s)
+            return v
+
+        def push(s: int) -> None:
+            nonlocal counter
+            f = g[s] + eps * hval(s)
+            in_open[s] = f
+            counter += 1
+            heapq.heappush(open_heap, (f, counter, s))
+
+        for s in push_order:
+            push(s)
         flat, wp, pad = self.flat, self.wp, self.pad
         prims = self.prims
         weight = self.cost_weight / 254.0
@@ -476,21 +517,132 @@ class LatticePlanner:
             # solution here the search is exhausted
             if timed_out or best is None or best[1] <= 1.0 + 1e-9 or eps <= 1.0 or not (open_heap or incons):
                 break
-            # ---- next pass: lower eps, re-open INCONS, re-key OPEN
+            # ---- next pass: lower eps, re-open INCONS, re-key OPEN (by state number, as the
+            # native search does: ties then break alike)
             eps = max(1.0, eps - self.p.epsilon_step)
-            for s in incons:
-                in_open[s] = 0.0
+            keys = sorted(in_open) + sorted(incons - in_open.keys())
             incons = set()
             closed = set()
             open_heap = []
-            for s in list(in_open):
+            in_open = {}
+            for s in keys:
                 counter += 1
                 f = g[s] + eps * hval(s)
                 in_open[s] = f
                 open_heap.append((f, counter, s))
             heapq.heapify(open_heap)
-        elapsed = time.perf_counter() - t0
-        ex = np.array(expanded_xy, dtype=float).reshape(-1, 2)
+        return best_path, best, solutions, expansions, expanded_xy, timed_out
+
+    def _search_native(self, h2: np.ndarray, descent: np.ndarray, goal, goal_state: int, snap_cost: float,
+                       init: list, init_g: list, root: int, start, connectors, budget: float, cancelled,
+                       offset: float):
+        """ARA*'s passes in the C++ core (src/lattice_core.cpp): the same search as
+        :meth:`_search_python`, its chain of states turned into edges here."""
+        with self._native_lock:
+            return self._search_native_locked(h2, descent, goal, goal_state, snap_cost, init, init_g, root, start,
+                                              connectors, budget, cancelled, offset)
+
+    def _search_native_locked(self, h2, descent, goal, goal_state, snap_cost, init, init_g, root, start, connectors,
+                              budget, cancelled, offset):
+        import ctypes
+
+        from .ompl_planner import CANCELLED
+
+        lib = self._native()
+        h2 = np.ascontiguousarray(h2, dtype=np.float64)
+        descent = np.ascontiguousarray(descent, dtype=np.float64)
+        states = np.asarray(init, dtype=np.int64)
+        gs = np.asarray(init_g, dtype=np.float64)
+        stats = np.zeros(8)
+        callback = CANCELLED(lambda: 1 if cancelled() else 0)
+        p = self.p
+        lib.qv_lattice_plan(self._handle, h2.ctypes.data, descent.ctypes.data, float(goal[0]), float(goal[1]),
+                            float(goal[2]), int(goal_state), float(snap_cost), states.ctypes.data, gs.ctypes.data,
+                            len(states), float(p.initial_epsilon), float(p.epsilon_step), int(p.max_expansions),
+                            max(0.0, float(budget)), float(p.nh_radius), float(p.shot_radius), int(p.shot_every),
+                            callback, stats.ctypes.data)
+        expansions, cost, bound, timed_out = int(stats[0]), float(stats[1]), float(stats[2]), bool(stats[3])
+        nchain, nsol, nexp, nshot = (int(v) for v in stats[4:8])
+        chain_s = np.zeros(nchain, np.int64)
+        chain_j = np.zeros(nchain, np.int32)
+        chain_g = np.zeros(nchain)
+        sols = np.zeros(4 * nsol)
+        expanded = np.zeros(2 * nexp, np.int32)
+        shot = np.zeros(2 * nshot)
+        lib.qv_lattice_fetch(self._handle, *(a.ctypes.data_as(ctypes.c_void_p)
+                                             for a in (chain_s, chain_j, chain_g, sols, expanded, shot)))
+        solutions = [(offset + t, c, b, int(e)) for t, c, b, e in sols.reshape(-1, 4).tolist()]
+        expanded_xy = expanded.reshape(-1, 2)
+        if not nchain:
+            return None, None, solutions, expansions, expanded_xy, timed_out
+        segs = [(chr(int(k)), float(v)) for k, v in shot.reshape(-1, 2).tolist()]
+        n, res, w = self.n, self.res, self.w
+        edges = []
+        for i in range(nchain):
+            s, j = int(chain_s[i]), int(chain_j[i])
+            if i == 0:  # an initial state: the start's own, or a connector's end
+                if root == START:
+                    pp, d = curves.sample(tuple(start), connectors[s], self.r, 0.5 * res)
+                    edges.append([pp, np.asarray(d[:-1], dtype=np.int8), float(chain_g[0])])
+                continue
+            p_state = int(chain_s[i - 1])
+            cell, k = divmod(p_state, n)
+            row, col = divmod(cell, w)
+            x0, y0 = (col + 0.5) * res, (row + 0.5) * res
+            if j >= 0:
+                pr = self.prims[k]
+                pp = pr.poses[j].copy()
+                pp[:, 0] += x0
+                pp[:, 1] += y0
+                d = pr.dirs[j]
+            elif j == -2:
+                pp, d = curves.sample((x0, y0, TWO_PI * k / n), segs, self.r, 0.5 * res)
+                d = d[:-1]
+            else:
+                continue  # the lattice goal state itself
+            edges.append([pp, np.asarray(d, dtype=np.int8), float(chain_g[i] - chain_g[i - 1])])
+        return edges, (cost, bound), solutions, expansions, expanded_xy, timed_out
+
+    def _native(self):
+        """The C++ search of this grid and primitive set (built once)."""
+        if self._handle is None:
+            import ctypes
+
+            from .ompl_planner import load_library
+
+            lib = load_library()
+            prims = self.prims
+            counts = np.array([pr.count for pr in prims], np.int32)
+            dflat = np.array([d for pr in prims for d in pr.dflat], np.int64)
+            k_end = np.array([k for pr in prims for k in pr.k_end], np.int32)
+            base = np.array([b for pr in prims for b in pr.base], np.float64)
+            cell_counts = np.array([len(c) for pr in prims for c in pr.cells], np.int32)
+            offsets = np.ascontiguousarray(np.concatenate([pr.offsets for pr in prims]), dtype=np.int64)
+            rows = np.ascontiguousarray(self.checker.rows, dtype=np.int32)
+            cols = np.ascontiguousarray(self.checker.cols, dtype=np.int32)
+            overhead = np.asarray(self.overhead, np.float64)
+            flat = np.ascontiguousarray(self.flat, dtype=np.uint8)
+            hp = len(flat) // self.wp
+            keep = (counts, dflat, k_end, base, cell_counts, offsets, rows, cols, overhead, flat)
+            ptr = [a.ctypes.data_as(ctypes.c_void_p) for a in keep]
+            handle = lib.qv_lattice_create(ptr[9], hp, self.wp, self.pad, self.h, self.w, self.res, self.n, ptr[0],
+                                           ptr[1], ptr[2], ptr[3], ptr[4], ptr[5], ptr[6], ptr[7], self.checker.bins,
+                                           self.checker.sub, rows.shape[1], self.r, int(self.reverse),
+                                           self.reverse_cost, self.cost_weight, ptr[8], len(overhead))
+            if not handle:
+                raise ValueError("the native lattice refused its arguments")
+            self._lib, self._handle = lib, handle
+        return self._lib
+
+    def __del__(self):
+        if getattr(self, "_handle", None):
+            self._lib.qv_lattice_destroy(self._handle)
+            self._handle = None
+
+    def _result(self, best_path, best, solutions, expansions, expanded_xy, timed_out, max_exp: int, budget: float,
+                start_state: int, cancelled) -> SearchResult:
+        n, res, w = self.n, self.res, self.w
+        ex = np.asarray(expanded_xy, dtype=float).reshape(-1, 2)
         expanded = np.column_stack([(ex[:, 1] + 0.5) * res, (ex[:, 0] + 0.5) * res]) if len(ex) else np.zeros((0, 2))
         if best_path is None:
             if timed_out:
@@ -500,7 +652,7 @@ class LatticePlanner:
                     reason = "cancelled"
             else:
                 reason = "no drivable path: every lattice motion from the start was searched"
-            return fail(reason, expansions, expanded)
+            return _fail(reason, expansions, expanded)
         cost = best[0]
         if not best_path:  # the start is the goal's lattice state
             cell, k = divmod(start_state, n)

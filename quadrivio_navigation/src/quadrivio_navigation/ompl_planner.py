@@ -27,6 +27,7 @@ from .costmap import CostGrid, Footprint
 
 _LIB = None
 _LIB_LOCK = threading.Lock()
+CANCELLED = ctypes.CFUNCTYPE(ctypes.c_int)  # a search's cancel callback
 
 
 class OmplUnavailable(RuntimeError):
@@ -87,6 +88,18 @@ def load_library():
             c_double_p, ctypes.c_char_p, ctypes.c_int]
         lib.qv_ompl_fetch.restype = ctypes.c_int
         lib.qv_ompl_fetch.argtypes = [ctypes.c_void_p, c_double_p, ctypes.c_int]
+        # the lattice's search (lattice.py, src/lattice_core.cpp)
+        vp, i32, i64 = ctypes.c_void_p, ctypes.c_int, ctypes.c_int64
+        lib.qv_lattice_create.restype = vp
+        lib.qv_lattice_create.argtypes = [vp, i32, i32, i32, i32, i32, ctypes.c_double, i32, vp, vp, vp, vp, vp, vp,
+                                          vp, vp, i32, i32, i32, ctypes.c_double, i32, ctypes.c_double,
+                                          ctypes.c_double, vp, i32]
+        lib.qv_lattice_destroy.argtypes = [vp]
+        lib.qv_lattice_plan.restype = i32
+        lib.qv_lattice_plan.argtypes = [vp, vp, vp, ctypes.c_double, ctypes.c_double, ctypes.c_double, i64,
+                                        ctypes.c_double, vp, vp, i32, ctypes.c_double, ctypes.c_double, i64,
+                                        ctypes.c_double, ctypes.c_double, ctypes.c_double, i32, CANCELLED, vp]
+        lib.qv_lattice_fetch.argtypes = [vp] * 7
         _LIB = lib
         return lib
 
