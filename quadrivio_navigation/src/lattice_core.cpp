@@ -552,3 +552,52 @@ void qv_lattice_fetch(void *handle, int64_t *chain_states, int32_t *chain_prims,
 }
 
 }  // extern "C"
+
+extern "C" {
+
+// Shortest distances [m] from the goal cell over the 8-connected cells marked free
+// (row-major h x w; a step joins two free cells, res or res * sqrt(2) long), infinity
+// where unreachable: scipy's csgraph.dijkstra on the same graph, without building it
+// (0.11 s of every plan on a 500 x 500 grid). Returns 1 when the goal cell is not free.
+int qv_grid_dijkstra(const uint8_t *free, int h, int w, double res, int goal, double *out)
+{
+    const size_t cells = (size_t)h * w;
+    std::fill(out, out + cells, kInf);
+    if (goal < 0 || (size_t)goal >= cells || !free[goal])
+        return 1;
+    const double diag = std::sqrt(2.0) * res;
+    const int dr[8] = {-1, -1, -1, 0, 0, 1, 1, 1}, dc[8] = {-1, 0, 1, -1, 1, -1, 0, 1};
+    typedef std::pair<double, int64_t> Item;
+    std::priority_queue<Item, std::vector<Item>, std::greater<Item>> heap;
+    std::vector<uint8_t> done(cells, 0);
+    out[goal] = 0.0;
+    heap.push({0.0, goal});
+    while (!heap.empty())
+    {
+        Item it = heap.top();
+        heap.pop();
+        const int64_t u = it.second;
+        if (done[u])
+            continue;
+        done[u] = 1;
+        const int r = (int)(u / w), c = (int)(u % w);
+        for (int i = 0; i < 8; ++i)
+        {
+            const int r2 = r + dr[i], c2 = c + dc[i];
+            if (r2 < 0 || c2 < 0 || r2 >= h || c2 >= w)
+                continue;
+            const int64_t v = (int64_t)r2 * w + c2;
+            if (!free[v] || done[v])
+                continue;
+            const double d = it.first + ((dr[i] != 0 && dc[i] != 0) ? diag : res);
+            if (d < out[v])
+            {
+                out[v] = d;
+                heap.push({d, v});
+            }
+        }
+    }
+    return 0;
+}
+
+}  // extern "C"

@@ -122,3 +122,17 @@ def test_native_search_is_much_faster():
         took.append(time.perf_counter() - t)
         assert r.expansions == 20000 or r.ok
     assert took[0] * 5 < took[1], took
+
+
+def test_native_heuristic_is_scipys_dijkstra():
+    """The 2-D heuristic from the C++ Dijkstra against scipy's on the same free cells."""
+    grid = scattered(size=40.0, res=0.2, seed=7, rocks=15, buildings=3)
+    nat, py = planners(grid, 0)
+    free = np.argwhere(nat.lattice()._free_2d())
+    for goal in free[np.random.default_rng(7).choice(len(free), 3)]:
+        goal = tuple(int(v) for v in goal)
+        a, b = nat.lattice().heuristic_2d(goal), py.lattice().heuristic_2d(goal)
+        assert np.array_equal(np.isinf(a), np.isinf(b))
+        assert np.isinf(a).any() and np.isfinite(a).sum() > 0.5 * a.size  # walled-in cells, and most reachable
+        finite = np.isfinite(a)
+        assert np.allclose(a[finite], b[finite], rtol=1e-12, atol=1e-12)

@@ -185,6 +185,7 @@ class LatticePlanner:
         for pr in self.prims:
             pr.bind(self.wp, self.w)
         self._graph = None
+        self._free = None
         self.overhead = self._turning_overhead()
         self._handle = None  # the native search (_native): one plan at a time (it keeps the results)
         self._native_lock = threading.Lock()
@@ -212,15 +213,23 @@ class LatticePlanner:
         return out
 
     # -------------------------------------------------------------- heuristic
-    def _graph_2d(self):
-        """Sparse 8-connected graph of the cells free in the inflated grid (built once)."""
-        if self._graph is None:
+    def _free_2d(self) -> np.ndarray:
+        """The cells free in the grid inflated by the footprint's inscribed radius, less a
+        cell (built once)."""
+        if self._free is None:
             from scipy import ndimage
-            from scipy.sparse import csr_matrix
 
             radius = max(0.0, self.fp.inscribed_radius - self.res * math.sqrt(0.5) - 1e-6)
             dist = ndimage.distance_transform_edt(~self.cg.blocked) * self.res
-            free = (dist >= radius) & ~self.cg.blocked
+            self._free = (dist >= radius) & ~self.cg.blocked
+        return self._free
+
+    def _graph_2d(self):
+        """Sparse 8-connected graph of the free cells (built once; the Python heuristic's)."""
+        if self._graph is None:
+            from scipy.sparse import csr_matrix
+
+            free = self._free_2d()
             h, w = free.shape
             idx = np.arange(h * w).reshape(h, w)
             src, dst, wt = [], [], []
@@ -236,13 +245,25 @@ class LatticePlanner:
         return self._graph
 
     def heuristic_2d(self, goal_cell: Tuple[int, int]) -> np.ndarray:
-        """Admissible 2-D distance [m] from every cell to the goal cell (inf: unreachable)."""
-        from scipy.sparse.csgraph import dijkstra
-
-        g, free = self._graph_2d()
+        """Admissible 2-D distance [m] from every cell to the goal cell (inf: unreachable):
+        Dijkstra over the free cells' 8-connected graph, in the C++ core when ``native``."""
+        free = self._free_2d()
         r, c = goal_cell
         if not free[r, c]:  # cannot happen for a free goal pose (see the module docstring)
             return np.full(self.h * self.w, np.inf)
+        if self.p.native:
+            import ctypes
+
+            from .ompl_planner import load_library
+
+            mask = np.ascontiguousarray(free, dtype=np.uint8)
+            out = np.empty(self.h * self.w)
+            load_library().qv_grid_dijkstra(mask.ctypes.data_as(ctypes.c_void_p), self.h, self.w, self.res,
+                                            r * self.w + c, out.ctypes.data_as(ctypes.c_void_p))
+            return out * OCTILE_ADMISSIBLE
+        from scipy.sparse.csgraph import dijkstra
+
+        g, _ = self._graph_2d()
         return dijkstra(g, directed=False, indices=r * self.w + c) * OCTILE_ADMISSIBLE
 
     def _descent_direction(self, h2: np.ndarray) -> np.ndarray:

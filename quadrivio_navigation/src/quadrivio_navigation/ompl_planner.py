@@ -100,6 +100,8 @@ def load_library():
                                         ctypes.c_double, vp, vp, i32, ctypes.c_double, ctypes.c_double, i64,
                                         ctypes.c_double, ctypes.c_double, ctypes.c_double, i32, CANCELLED, vp]
         lib.qv_lattice_fetch.argtypes = [vp] * 7
+        lib.qv_grid_dijkstra.restype = i32
+        lib.qv_grid_dijkstra.argtypes = [vp, i32, i32, ctypes.c_double, i32, vp]
         _LIB = lib
         return lib
 

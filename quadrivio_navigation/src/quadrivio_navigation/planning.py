@@ -142,7 +142,7 @@ class Planner:
             self._lattice = LatticePlanner(self.cost, self.primitives(), self.footprint, self.turning_radius,
                                            self.p.reverse, self.p.lattice, self.p.cost.cost_weight,
                                            self.p.reverse_cost)
-            self._lattice._graph_2d()
+            self._lattice._free_2d()
             self.build_time += time.perf_counter() - t
         return self._lattice
 
