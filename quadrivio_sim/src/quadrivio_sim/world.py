@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import tempfile
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
@@ -37,6 +38,20 @@ from quadrivio_terrain.terrain import Heightfield, TerrainParams, build_heightfi
 
 Vec3 = Tuple[float, float, float]
 Quat = Tuple[float, float, float, float]  # x, y, z, w (PyBullet order)
+
+
+def _direct_client():
+    """A DIRECT PyBullet client, without the "argv[0]=" its C code prints to the process's
+    stdout on every connect (two lines a run in every campaign log)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            return bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 @dataclass(frozen=True)
@@ -148,7 +163,7 @@ class World:
         self.physics = physics
         self.terrain = terrain
         self.dt = physics.dt
-        self.pb = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.pb = _direct_client()
         # Hot paths call pybullet directly with this id: BulletClient wraps every call in
         # a new functools.partial (about 2 ms per simulated second).
         self.cid = self.pb._client
@@ -162,7 +177,7 @@ class World:
         self.map_ids = [self._make_mesh(self.pb, v, i) for v, i in meshes]
         # A second, static client with the same ground and obstacles and no vehicle:
         # sensor rays are cast there (3-5x cheaper than among the vehicle's links).
-        self.rays = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.rays = _direct_client()
         self.rays_cid = self.rays._client
         self._make_ground(self.rays)
         for o in obstacles:
