@@ -175,3 +175,52 @@ def test_a_fault_found_later_does_not_let_an_earlier_burst_in(burst_before_fault
         assert after.use and g.burst is None
     else:
         assert all(v.use for v in during)
+
+
+def test_a_burst_that_begins_while_unsettled_by_a_fault_is_still_a_jump():
+    """Unsettled by a fault found later (a wheel slip), the gate takes the next fixes untested:
+    the estimate's position is in doubt. Its motion over one fix period is not: a 5.5 m step of
+    the fixes 1.4 s into the slip is a burst (on rough ground at 3 m/s it went in untested, the
+    estimate jumped 4 m and the follower aborted). At start-up, before the estimate has ever
+    settled, no step is judged."""
+    g = settled_gate(group=0.0)
+    R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 0.3 ** 2  # Q: no odometry over the step
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
+        t += 0.2
+    g.unsettle(keep_burst_before=t - 1.0)
+    wrong = np.array([1.0, 0.5])  # the estimate rode the spinning wheels: 1.1 m off, the fixes right
+    settling = [g.decide(t + 0.2 * i, wrong, P, R, (), (np.zeros(2), R, R, Q)) for i in range(7)]
+    assert all(v.use for v in settling)  # untested: they pull the estimate back
+    off = wrong + np.array([5.5, 0.0])
+    t += 1.4
+    burst = [g.decide(t + 0.2 * i, off, P, R, (), (off - wrong if i == 0 else np.zeros(2), R, R, Q))
+             for i in range(10)]
+    assert not any(v.use for v in burst) and all(v.reason == MULTIPATH for v in burst)
+    back = g.decide(t + 2.0, wrong, P, R, (), (wrong - off, R, R, Q))
+    assert back.use and g.burst is None
+    fresh = GpsGate(GpsGateParams(group=0.0))  # never settled: every fix in, steps or not
+    assert fresh.decide(0.0, np.zeros(2), P, R).use
+    assert fresh.decide(0.2, off, P, R, (), (off, R, R, Q)).use and fresh.burst is None
+
+
+def test_a_burst_cleared_by_a_fault_leaves_no_step_judged_until_settled():
+    """A burst that began after the fault's earliest start may be the estimate's error: the
+    fault clears it and its fixes go in. Their jump back 0.4 s later is then no burst's
+    start: judged as one, it held the right fixes out and the estimate ran 10 m off (rough
+    ground at 3 m/s, seed 9)."""
+    g = settled_gate(group=0.0)
+    R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 1e-3
+    t = 0.0
+    for _ in range(10):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
+        t += 0.2
+    off = np.array([4.6, 0.0])
+    assert not g.decide(t, off, P, R, (), (off, R, R, Q)).use
+    g.unsettle(keep_burst_before=t - 0.2)  # the burst began after the fault's earliest start
+    assert g.burst is None
+    assert g.decide(t + 0.2, off, P, R, (), (np.zeros(2), R, R, Q)).use  # untested
+    back = [g.decide(t + 0.4 + 0.2 * i, off * 0.5, P, R, (), (-off if i == 0 else np.zeros(2), R, R, Q))
+            for i in range(5)]
+    assert all(v.use for v in back) and g.burst is None

@@ -88,6 +88,9 @@ class GpsGateParams:
     yield_after: float = param(30.0, lo=0.0, hi=1e4, unit="s",
                                doc="accept fixes again after this long with every fix rejected")
     settle_fixes: int = param(20, lo=0, hi=100000, doc="fixes used before the tests start")
+    blind_speed_sd: float = param(1.5, lo=0.01, hi=50.0, unit="m/s",
+                                  doc="the estimate's speed error without odometry (a slip, a locked or dead "
+                                      "wheel): the jump test's allowance for its step between two fixes")
     min_std: Tuple[float, float, float] = param((0.5, 0.3, 0.01), lo=0.0, hi=100.0, unit="m",
                                                 doc="smallest horizontal standard deviation believed for a fix of "
                                                     "status FIX, SBAS_FIX, GBAS_FIX (whatever it reports)")
@@ -140,6 +143,7 @@ class GpsGate:
         self.burst_since = -math.inf
         self.last_fix_t = -math.inf
         self.bursts = 0
+        self.ever_settled = False  # unsettled since by a fault, not new: steps still tell a jump
         self.decisions: list = []  # (t, used, reason, d2) since the last pop_decisions
 
     @property
@@ -167,7 +171,12 @@ class GpsGate:
         the estimate jumped 5 m, the follower aborted)."""
         self.used = 0
         if self.burst is not None and self.burst_since >= keep_burst_before:
+            # a burst that may be the estimate's own error: which side the fixes are on is
+            # open, and so is whether their next step is a burst's start or its end. No step
+            # is judged until the gate settles again (judged, a 4.6 m burst's jump back 0.4 s
+            # after the slip was found held the right fixes out: the estimate ran 10 m off)
             self.burst = None
+            self.ever_settled = False
         self.rejecting_since = None
 
     def skip(self, reason: str, t: float = math.nan) -> None:
@@ -234,7 +243,14 @@ class GpsGate:
         self.last_fix_t = t
         if self.burst is not None and (gap > self.p.jump_window or t - self.burst_since > self.p.yield_after):
             self.burst = None  # an outage, or too long: whatever it was, it is over
-        if step is None or (not self.settled and self.burst is None) or gap > self.p.jump_window:
+        if self.settled:
+            self.ever_settled = True
+        if step is None or (not self.ever_settled and self.burst is None) or gap > self.p.jump_window:
+            # Until the estimate first settles, no step of it is trusted. Unsettled later by a
+            # fault (a wheel slip, a dead wheel), the estimate's position is in doubt, not its
+            # motion over one fix period: a multipath burst that begins then is still a jump
+            # (rough ground at 3 m/s: a 5.5 m burst 1.4 s into a slip went in untested, the
+            # estimate jumped 4 m and the follower aborted).
             return self.burst is not None
         d, R_prev, R, Q = step
         if self.burst is None:

@@ -580,8 +580,7 @@ class Localizer:
                         group.append((other[0], np.diag(self.gps_pending[j][2:4])))
             antenna = zc - nu  # estimated antenna plus drift
             step = None
-            if self.prev_fix is not None and self.prev_fix[0] < t and self.prev_fix[0] > self.no_odometry_t:
-                # (the estimated antenna's step says little without odometry over it)
+            if self.prev_fix is not None and self.prev_fix[0] < t:
                 t_p, z_p, k_p, R_p = self.prev_fix
                 pose_p = self._pose(k_p, values) if k_p >= self.oldest_k else None
                 if pose_p is not None:
@@ -593,6 +592,10 @@ class Localizer:
                     n = (t - t_p) / self.dt
                     dist = abs(self.latest_speed) * (t - t_p)
                     Q = np.eye(2) * (n * self.p.noise.odometry_xy ** 2 + (self.p.noise.odometry_xy_per_m * dist) ** 2)
+                    if t_p <= self.no_odometry_t:
+                        # without odometry over the step the estimate's motion is the motion
+                        # model's: good to its speed error over one fix period, no better
+                        Q = Q + np.eye(2) * (g.blind_speed_sd * (t - t_p)) ** 2
                     step = ((zc - z_p) - (antenna - a_p), R_p, R, Q)
             self.prev_fix = (t, zc, k, R)
             behind = []
