@@ -38,7 +38,11 @@ Two tests, each by its own reason:
   a "burst" opened by the estimate's own error never jumps back), when the fixes stop
   for longer than ``jump_window`` (an outage ends it: nothing is held across one), or
   after ``yield_after``. A noisy receiver's steps are too noisy for this test; the group
-  test catches its bursts.
+  test catches its bursts. Without odometry over the step (a slip, a locked or dead wheel)
+  the estimated step is the motion model's, allowed ``blind_speed_sd`` over the fix period;
+  and after a fault found later has unsettled the gate the test goes on (the estimate's
+  position is in doubt, not its motion over one period), unless the fault cleared a burst
+  in progress: then no step is judged until the gate settles again.
 
 After ``yield_after`` s in which every fix was rejected, the gate accepts again (counted as
 ``yielded``): an estimate that is wrong and overconfident must not lock its only absolute
