@@ -105,21 +105,3 @@ def test_mag_jacobians_and_heading_inverse():
     f = F.mag_factor(UNIT[2], X(0), M(0), m + np.array([0.3, -0.2]), h)
     check_jacobians(f, v)
     assert F.mag_heading(m, calib, h) == pytest.approx(0.9, abs=1e-9)
-
-
-@pytest.mark.parametrize("slow_by", [0.0, 0.03, 0.5])
-def test_constant_velocity_jacobians_and_braking(slow_by):
-    """Without odometry the vehicle keeps its motion; braked (a locked wheel) it loses
-    ``slow_by`` metres an interval, down to standstill: zero error there, Jacobians against
-    finite differences."""
-    f = F.constant_velocity_factor(UNIT[2], X(0), X(1), X(2), slow_by)
-    v = gtsam.Values()
-    v.insert(X(0), gtsam.Pose2(1.0, 2.0, 0.3))
-    v.insert(X(1), v.atPose2(X(0)).compose(gtsam.Pose2(0.15, 0.01, 0.02)))
-    v.insert(X(2), v.atPose2(X(1)).compose(gtsam.Pose2(0.12, -0.02, 0.05)))
-    check_jacobians(f, v)
-    step = math.hypot(0.15, 0.01)
-    keep = max(0.0, 1.0 - slow_by / step)  # what the second interval should translate, as a share
-    at = gtsam.Values(v)
-    at.update(X(2), v.atPose2(X(1)).compose(gtsam.Pose2(keep * 0.15, keep * 0.01, 0.05)))
-    np.testing.assert_allclose(f.unwhitenedError(at), 0.0, atol=1e-12)

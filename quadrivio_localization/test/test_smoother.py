@@ -232,25 +232,6 @@ def test_a_locked_wheel_is_not_taken_for_standstill_nor_the_fixes_for_multipath(
     assert errors[errors[:, 0] > 19.0, 1].max() < 0.5
 
 
-def test_a_locked_wheel_brakes_the_estimate_without_the_gps():
-    """The same full brake with no fix from just before it to well after the stop (an
-    outage here; on rough ground at 3 m/s a multipath burst that began with the brake kept
-    the fixes out): without odometry the estimate must not keep the vehicle's speed. Kept,
-    it ran 2 m past the stop (rough_terrain, seed 3, 4.8 m later), and here, where the wheel's
-    0 on the curve is then taken for a dead channel, 5.9 m; braked at the lock's own
-    deceleration it stops with the vehicle."""
-    from offline_run import brake_script
-
-    def outage(noise):
-        return replace_nested(noise, {"multipath": {"mean_interval": 1e6}, "outages": {"scheduled": [[19.5, 26.0]]}})
-    errors, loc, _ = run(seconds=26.0, seed=0, script=brake_script, gps_changes=outage)
-    assert loc.counters.intervals_wheel_locked > 0
-    blind = errors[(errors[:, 0] > 19.5) & (errors[:, 0] < 26.0)]
-    assert len(blind) > 50 and blind[:, 1].max() < 0.6, blind[:, 1].max()  # kept at speed: over 1 m
-    standing = blind[(blind[:, 0] > 22.0) & (blind[:, 0] < 25.0)]  # it drives on at 25 s
-    assert np.abs(standing[:, 9]).max() < 0.2  # standing, by its own account
-
-
 def test_no_wheel_lock_in_ordinary_driving(calibrated_run):
     _, loc, _ = calibrated_run
     assert loc.counters.intervals_wheel_locked == 0

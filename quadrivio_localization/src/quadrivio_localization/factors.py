@@ -178,35 +178,21 @@ def gauss_markov_factor(noise, k0: int, k1: int, phi: float) -> gtsam.CustomFact
     return gtsam.CustomFactor(noise, [k0, k1], error)
 
 
-def constant_velocity_factor(noise, k0: int, k1: int, k2: int, slow_by: float = 0.0) -> gtsam.CustomFactor:
+def constant_velocity_factor(noise, k0: int, k1: int, k2: int) -> gtsam.CustomFactor:
     """Without odometry, the vehicle keeps its motion: the translation of interval (k1, k2),
     in the body frame at k1, equals that of (k0, k1) in the body frame at k0, to within the
-    noise (a random acceleration). Only the translation: the gyro says how the heading turns.
-
-    ``slow_by`` [m] (a deceleration times the interval squared): the vehicle brakes, so the
-    second translation is the first shortened by this, down to standstill (a locked wheel
-    under a full brake: the vehicle slides to a stop, it does not keep its speed)."""
+    noise (a random acceleration). Only the translation: the gyro says how the heading turns."""
 
     def error(this, values, H):
         x0, x1, x2 = (values.atPose2(k) for k in this.keys())
         J01a, J01b, J12a, J12b = (np.zeros((3, 3), order="F") for _ in range(4))
         d01 = x0.between(x1, J01a, J01b)
         d12 = x1.between(x2, J12a, J12b)
-        t01 = np.array([d01.x(), d01.y()])
-        scaled, M = t01, np.eye(2)  # the first translation as the second should be, its derivative
-        if slow_by > 0.0:
-            step = math.hypot(t01[0], t01[1])
-            if step > slow_by:
-                scale = 1.0 - slow_by / step
-                scaled = scale * t01
-                M = scale * np.eye(2) + slow_by * np.outer(t01, t01) / step ** 3
-            else:
-                scaled, M = np.zeros(2), np.zeros((2, 2))
-        e = np.array([d12.x() - scaled[0], d12.y() - scaled[1]])
+        e = np.array([d12.x() - d01.x(), d12.y() - d01.y()])
         if H is not None:
             # between()'s Jacobians are in the result's tangent space, whose translation part
             # moves the translation along the result's rotation.
-            T01 = M @ np.hstack([d01.rotation().matrix(), np.zeros((2, 1))])
+            T01 = np.hstack([d01.rotation().matrix(), np.zeros((2, 1))])
             T12 = np.hstack([d12.rotation().matrix(), np.zeros((2, 1))])
             H[0] = -T01 @ J01a
             H[1] = T12 @ J12a - T01 @ J01b

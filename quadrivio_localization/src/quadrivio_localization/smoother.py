@@ -156,7 +156,6 @@ class Localizer:
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
-        self.dead_wheel_braked = False  # the dead wheel was found under a locked wheel's brake
         self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
         self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold)) \
             if p.wheel_slip_threshold > 0.0 else None
@@ -383,18 +382,15 @@ class Localizer:
         samples = self._samples(t0, t1) if self.p.use_odometry else []
         dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
         slipping = self._wheel_slip(t1)
-        braking = False  # a locked wheel: the vehicle slides to a stop under a full brake
         if samples and slipping:
             samples = []  # the wheels turn, the vehicle does not (or not as fast)
             self.counters.intervals_wheel_slip += 1
         elif samples and self._wheel_dead(t1, samples, dth_gyro, float(prev_b[0])):
             samples = []  # a wheel that reads 0 while the vehicle turns says nothing true
             self.counters.intervals_wheel_rejected += 1
-            braking = self.dead_wheel_braked
         elif samples and self._wheel_locked(t0, t1):
             samples = []  # nor one that stopped faster than the vehicle can
             self.counters.intervals_wheel_locked += 1
-            braking = True
         if samples:
             span = sum(dt for dt, _, _ in samples)
             speed = sum(dt * v for dt, v, _ in samples) / span
@@ -420,13 +416,10 @@ class Localizer:
             before = self._pose(k0 - 1, values) if k0 - 1 >= self.oldest_k else None
             if before is not None and nz.no_odometry_accel > 0.0:
                 # Neither the wheel nor the handlebar: the vehicle keeps its motion, give or
-                # take a random acceleration; with a locked wheel it brakes, at the
-                # deceleration the lock's own duration assumes (no_odometry_accel). Kept at
-                # its speed, a vehicle braked from 3.3 m/s to a stop in 0.9 s ran on 2 m in the
-                # estimate, and a multipath burst that began at the same time kept the fixes out.
+                # take a random acceleration (a braked vehicle stops within the GPS's reach).
                 sigma = nz.no_odometry_accel * self.dt * self.dt
                 graph.add(factors.constant_velocity_factor(gtsam.noiseModel.Isotropic.Sigma(2, sigma),
-                                                     X(k0 - 1), X(k0), X(k1), sigma if braking else 0.0))
+                                                     X(k0 - 1), X(k0), X(k1)))
                 guess = prev.compose(before.between(prev))
         if dth_gyro is not None:
             graph.add(factors.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
@@ -458,13 +451,6 @@ class Localizer:
         rate = None if dth_gyro is None else dth_gyro / self.dt - bias
         dead, began, events = self.dead_wheel.update(t, max(abs(v) for _, v, _ in samples), rate)
         self.events.extend(events)
-        if began:
-            # found while a wheel is locked: the wheel reads 0 because the brake holds it and
-            # the vehicle slides on, turning; it brakes to a stop, it does not keep its speed
-            # (kept, a vehicle braked on a curve ran on 5.9 m in the estimate over 5 s without fixes)
-            self.dead_wheel_braked = self.wheel_lock.since is not None
-        if not dead:
-            self.dead_wheel_braked = False
         if began:
             # The last wheel_check_time s of odometry said "standing" and the estimate believed
             # it, covariance included: the gate must not judge the fixes by it.
