@@ -597,31 +597,11 @@ class LatticePlanner:
         if not nchain:
             return None, None, solutions, expansions, expanded_xy, timed_out
         segs = [(chr(int(k)), float(v)) for k, v in shot.reshape(-1, 2).tolist()]
-        n, res, w = self.n, self.res, self.w
-        edges = []
-        for i in range(nchain):
-            s, j = int(chain_s[i]), int(chain_j[i])
-            if i == 0:  # an initial state: the start's own, or a connector's end
-                if root == START:
-                    pp, d = curves.sample(tuple(start), connectors[s], self.r, 0.5 * res)
-                    edges.append([pp, np.asarray(d[:-1], dtype=np.int8), float(chain_g[0])])
-                continue
-            p_state = int(chain_s[i - 1])
-            cell, k = divmod(p_state, n)
-            row, col = divmod(cell, w)
-            x0, y0 = (col + 0.5) * res, (row + 0.5) * res
-            if j >= 0:
-                pr = self.prims[k]
-                pp = pr.poses[j].copy()
-                pp[:, 0] += x0
-                pp[:, 1] += y0
-                d = pr.dirs[j]
-            elif j == -2:
-                pp, d = curves.sample((x0, y0, TWO_PI * k / n), segs, self.r, 0.5 * res)
-                d = d[:-1]
-            else:
-                continue  # the lattice goal state itself
-            edges.append([pp, np.asarray(d, dtype=np.int8), float(chain_g[i] - chain_g[i - 1])])
+        # the chain as (parent, primitive, state) links: a connector from the exact start, or none
+        links = [(START, -3, int(chain_s[0]))] if root == START else []
+        links += [(int(chain_s[i - 1]), int(chain_j[i]), int(chain_s[i])) for i in range(1, nchain)]
+        g = {int(st): float(gv) for st, gv in zip(chain_s, chain_g)}
+        edges = self._edges(links, g, start, connectors, segs)
         return edges, (cost, bound), solutions, expansions, expanded_xy, timed_out
 
     def _native(self):
@@ -722,6 +702,12 @@ class LatticePlanner:
             chain.append((p, j, s))
             s = p
         chain.reverse()
+        return self._edges(chain, g, start, connectors, shots[goal][1] if goal in shots else None)
+
+    def _edges(self, chain, g, start, connectors, shot):
+        """Edges (start pose, poses, directions, cost) of ``(parent, primitive, state)`` links:
+        -3 a connector from the exact start, -2 the analytic expansion ``shot``, -1 the goal's
+        lattice state (no motion)."""
         n, res, w = self.n, self.res, self.w
         edges = []
         for p, j, s in chain:
@@ -739,7 +725,7 @@ class LatticePlanner:
                 pp[:, 1] += y0
                 d = pr.dirs[j]
             elif j == -2:
-                pp, d = curves.sample((x0, y0, TWO_PI * k / n), shots[goal][1], self.r, 0.5 * res)
+                pp, d = curves.sample((x0, y0, TWO_PI * k / n), shot, self.r, 0.5 * res)
                 d = d[:-1]
             else:
                 continue  # the lattice goal state itself
