@@ -15,7 +15,7 @@ def drive(ws, t0, t1, wheel, body_accel, pitch=0.0, fixes=None, rng=None, dt=0.0
     k0, k1 = int(round(t0 / dt)), int(round(t1 / dt))
     for k in range(k0, k1):
         t = k * dt
-        ws.add_imu(t, body_accel(t) - G * math.sin(pitch), 0.0, pitch)
+        ws.add_imu(t, (body_accel(t) - G * math.sin(pitch), 0.0, G * math.cos(pitch)), (0.0, 0.0, 0.0))
         if k % 2 == 0:
             ws.add_speed(t, wheel(t))
         if fixes is not None and k % 20 == 0:

@@ -1,5 +1,5 @@
 """The roscpp guard's core (include/quadrivio_navigation/guard_core.h) against the Python
-reference (guard.py, fields.py, attitude.py, local_layer.dem_ground) on random cases.
+reference (guard.py, fields.py, quadrivio_description.attitude, local_layer.dem_ground) on random cases.
 
 The C++ core runs in ``guard_replay`` (test/guard_replay.cpp, built with the workspace): its
 configuration is what ``quadrivio_navigation.ros.guard_config.emit`` writes for the C++ node,
@@ -15,7 +15,7 @@ import pytest
 
 from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
-from quadrivio_navigation.attitude import Attitude, imu_lever
+from quadrivio_description.attitude import Attitude, imu_lever
 from quadrivio_navigation.fields import ScanPoints
 from quadrivio_navigation.guard import Guard, GuardParams
 from quadrivio_navigation.local_layer import dem_ground

@@ -159,7 +159,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_description.frames import rpy_matrix
     from quadrivio_localization.predictor import Predictor, PredictorParams, predicted
     from quadrivio_localization.smoother import Localizer
-    from quadrivio_navigation.attitude import Attitude, imu_lever
+    from quadrivio_description.attitude import Attitude, imu_lever
     from quadrivio_navigation.costmap import Footprint
     from quadrivio_navigation.fields import ScanError, check_scan, scan_points
     from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route

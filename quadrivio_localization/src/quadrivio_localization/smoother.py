@@ -43,6 +43,7 @@ from typing import Deque, Dict, List, Optional, Tuple
 import gtsam
 import numpy as np
 
+from quadrivio_description.attitude import imu_lever
 from quadrivio_description.frames import rotate
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.site import SiteParams
@@ -157,8 +158,8 @@ class Localizer:
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
         self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
-        self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold)) \
-            if p.wheel_slip_threshold > 0.0 else None
+        self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold),
+                              lever=imu_lever(vehicle)) if p.wheel_slip_threshold > 0.0 else None
         self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.dead_wheel = DeadWheel(p.wheel_check_rate, p.wheel_check_time, self.REST_SPEED, self.dt)
@@ -198,7 +199,7 @@ class Localizer:
             return
         self.gyro.append(t, self.leveller.add_imu(t, f, w))
         if self.slip is not None:
-            self.slip.add_imu(t, rotate(self.imu_mount, f)[0], rotate(self.imu_mount, w)[1], self.leveller.pitch)
+            self.slip.add_imu(t, rotate(self.imu_mount, f), rotate(self.imu_mount, w))
         self.latest_t = max(self.latest_t, t)
 
     def add_mag(self, t: float, m: Tuple[float, float, float]) -> None:

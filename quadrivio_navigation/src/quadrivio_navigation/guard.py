@@ -249,7 +249,7 @@ class Guard:
 
     def on_pitch(self, stamp: float, pitch: float) -> None:
         """The vehicle's pitch [rad] (REP-103: positive nose down), from
-        :class:`quadrivio_navigation.attitude.Attitude` (the IMU with the vehicle's own
+        :class:`quadrivio_description.attitude.Attitude` (the IMU with the vehicle's own
         acceleration taken out)."""
         if self.slope_est is not None and stamp > self.slope_est[0] and self.p.slope_smoothing > 0.0:
             k = min(1.0, (stamp - self.slope_est[0]) / self.p.slope_smoothing)

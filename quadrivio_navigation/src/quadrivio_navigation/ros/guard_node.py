@@ -13,7 +13,7 @@ the fields of :class:`quadrivio_navigation.guard.GuardParams`, and ``~zone_file`
 the parameters give none), ``~terrain_from_scenario`` (bool, true) and ``~ground_tolerance``
 (m, 0.15): with a scenario whose terrain is known (a DEM), a return within the tolerance of
 it, from the laser's 3D pose (the predicted pose, the DEM's height there, roll and pitch
-from :class:`quadrivio_navigation.attitude.Attitude`), is the ground, not an obstacle.
+from :class:`quadrivio_description.attitude.Attitude`), is the ground, not an obstacle.
 
 Subscribes: ``vehicle/setpoint/request`` (quadrivio_plc/Setpoint), each scanner's topic
 (sensor_msgs/LaserScan; ``scan/front``, ``scan/rear``), ``vehicle/state``
@@ -52,7 +52,7 @@ from quadrivio_runtime.ros.params import fatal, node_params, private_params, spl
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import Setpoint, VehicleState
 
-from ..attitude import Attitude, imu_lever
+from quadrivio_description.attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan, scan_points
 from ..local_layer import scan_ground, terrain_ground
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \

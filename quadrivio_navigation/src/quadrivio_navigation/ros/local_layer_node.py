@@ -13,7 +13,7 @@ goal, i.e. is not IDLE; the planner is the layer's reader, and a path-following 
 
 Subscribes: the scanners' topics (sensor_msgs/LaserScan), ``localization/predicted``
 (nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu) and ``vehicle/state``
-(quadrivio_plc/VehicleState): roll and pitch (:class:`quadrivio_navigation.attitude.Attitude`),
+(quadrivio_plc/VehicleState): roll and pitch (:class:`quadrivio_description.attitude.Attitude`),
 with a DEM only, ``/tf_static`` (the scanners' mounts).
 Publishes: ``local_obstacles`` (nav_msgs/OccupancyGrid at ``~publish_rate``: 100 marked, 0
 seen free, -1 unknown), ``/diagnostics`` (update time, ground returns, rejects).
@@ -40,7 +40,7 @@ from quadrivio_runtime.ros.params import node_params, private_params, split_para
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
-from ..attitude import Attitude, imu_lever
+from quadrivio_description.attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan
 from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_in_map, terrain_ground
 from .site_inputs import StaticFrames, scenario_terrain

@@ -1,10 +1,10 @@
-"""The attitude filter (quadrivio_navigation.attitude): the vehicle's own acceleration is no
+"""The attitude filter (quadrivio_description.attitude): the vehicle's own acceleration is no
 tilt, the slope is found, the gyro carries it through a wheel that lies."""
 import math
 
 import pytest
 
-from quadrivio_navigation.attitude import Attitude
+from quadrivio_description.attitude import Attitude
 
 G = 9.80665
 

@@ -86,7 +86,7 @@ class Attitude:
             return
         fresh = self.speed is not None and t - self.speed[0] <= self.speed_timeout
         v = self.speed[1] if fresh else 0.0
-        f = self._without_lever(f, w)
+        f = self.without_lever(f, w)
         g = (f[0] - (self.accel if fresh else 0.0), f[1] - v * w[2], f[2])
         roll_g, pitch_g = tilt_from_gravity(g)
         if not self.started:
@@ -107,7 +107,7 @@ class Attitude:
             self.bias_roll = min(max(self.bias_roll - ki * e_roll, -mb), mb)
             self.bias_pitch = min(max(self.bias_pitch - ki * e_pitch, -mb), mb)
 
-    def _without_lever(self, f: Sequence[float], w: Sequence[float]):
+    def without_lever(self, f: Sequence[float], w: Sequence[float]):
         """The specific force at base_link's origin: an IMU ``lever`` [m] from it also feels
         the centripetal ``w x (w x r)``, whose mean is not zero on bumps."""
         rx, ry, rz = self.lever
