@@ -101,6 +101,10 @@ class LocalizerParams:
                                             "over wheel_slip_window, or more speed than a steady stream of fixes, "
                                             "slip: odometry ignored while it lasts (0: never)")
     wheel_slip_window: float = param(0.5, lo=0.05, hi=10.0, unit="s", doc="the IMU test's window")
+    wheel_slip_sigmas: float = param(4.0, lo=0.0, hi=100.0,
+                                     doc="...and at least this many of that difference's RMS over the last 10 s "
+                                         "without a slip (rough ground: the wheel climbs every bump; 0: the "
+                                         "threshold alone)")
     wheel_lock_decel: float = param(12.0, lo=0.0, hi=1000.0, unit="m/s^2",
                                     doc="a wheel speed that drops faster than this is a locked wheel, not the vehicle: "
                                         "odometry ignored until it reads motion again or the vehicle would have "

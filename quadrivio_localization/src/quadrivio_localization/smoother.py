@@ -158,7 +158,8 @@ class Localizer:
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
         self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
-        self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold),
+        self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold,
+                                         sigmas=p.wheel_slip_sigmas),
                               lever=imu_lever(vehicle)) if p.wheel_slip_threshold > 0.0 else None
         self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
