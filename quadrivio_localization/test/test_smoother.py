@@ -232,6 +232,28 @@ def test_a_locked_wheel_is_not_taken_for_standstill_nor_the_fixes_for_multipath(
     assert errors[errors[:, 0] > 19.0, 1].max() < 0.5
 
 
+def test_a_locked_wheel_in_a_gps_outage_brakes_the_estimate_by_the_imu():
+    """The same full brake with no fix from 19.8 to 24 s: the wheel reads 0 from the lock
+    on, which is also how a dead wheel-speed channel begins (the vehicle then drives on), so
+    the wheel cannot say which. The IMU can: from the lock's onset its speed (the wheel's
+    before the drop plus the specific force's integral, gravity out) brakes the estimate
+    with the vehicle. Without it (the IMU speed's sd made huge) the estimate keeps the speed
+    of the slide and the dead-wheel check then holds the odometry off: 7.5 m off by 24 s."""
+    from offline_run import brake_script
+
+    def outage(n):
+        return dataclasses.replace(n, outages=dataclasses.replace(n.outages, scheduled=((19.8, 24.0),)))
+
+    def worst(imu_speed_sd):
+        p = LocalizerParams()
+        p = dataclasses.replace(p, noise=dataclasses.replace(p.noise, imu_speed_sd=imu_speed_sd))
+        errors, loc, _ = run(seconds=24.5, seed=0, script=brake_script, gps_changes=outage, params=p)
+        assert loc.counters.intervals_wheel_locked > 0 and loc.counters.intervals_imu_speed > 0
+        return errors[(errors[:, 0] > 19.5) & (errors[:, 0] < 24.0), 1].max()
+    assert worst(LocalizerParams().noise.imu_speed_sd) < 0.6
+    assert worst(100.0) > 2.0
+
+
 def test_no_wheel_lock_in_ordinary_driving(calibrated_run):
     _, loc, _ = calibrated_run
     assert loc.counters.intervals_wheel_locked == 0

@@ -155,7 +155,7 @@ def test_the_imu_lever_arm_is_no_speed_change():
             if k % 2 == 0:
                 ws.add_speed(t, 2.0)
             if t > 5.0 and k % 5 == 0:
-                changes.append(abs(ws._body_change(t - 0.5, t)))
+                changes.append(abs(ws.body_change(t - 0.5, t)))
         return max(changes)
     # what is left: the attitude filter's pitch (1.2 deg off: its pull sees alpha x r too)
     assert largest_change(r) < 0.15

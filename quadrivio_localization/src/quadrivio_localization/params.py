@@ -37,6 +37,11 @@ class NoiseParams:
     no_odometry_accel: float = param(3.0, lo=0.0, hi=100.0, unit="m/s^2",
                                      doc="without odometry the vehicle keeps its velocity, give or take this "
                                          "acceleration (0: no such factor)")
+    imu_speed_sd: float = param(0.15, lo=1e-3, hi=100.0, unit="m/s",
+                                doc="while the wheel lies (locked, slipping, dead), the IMU's speed since the "
+                                    "fault's onset: its sd at the onset (the wheel's speed then)...")
+    imu_speed_sd_per_s: float = param(0.3, lo=0.0, hi=100.0, unit="m/s^2",
+                                      doc="...growing by this per second (a pitch 1 deg off is 0.17 m/s^2)")
     kinematic_walk: Tuple[float, float, float] = param((2e-4, 2e-4, 4e-4), unit="1/sqrt(s), rad/sqrt(s), 1/sqrt(s)",
                                                        doc="random walk of k_v, h_0, k_d")
     mag_walk: Tuple[float, float, float, float, float] = param((0.02, 0.02, 5e-4, 5e-4, 5e-4),

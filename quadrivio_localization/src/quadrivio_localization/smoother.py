@@ -121,6 +121,7 @@ class Counters:
     intervals_without_gyro: int = 0
     intervals_wheel_rejected: int = 0  # the wheel read 0 while the vehicle moved (Localizer.faults)
     intervals_wheel_locked: int = 0  # the wheel speed dropped faster than the vehicle can brake
+    intervals_imu_speed: int = 0  # of those without odometry: the IMU's speed since the fault's onset used
     intervals_wheel_slip: int = 0  # the wheels reported motion the IMU or the GPS denied (wheel_slip.py)
     out_of_order: int = 0
     bad_input: int = 0
@@ -157,6 +158,7 @@ class Localizer:
         self.decided: Deque[Tuple[float, np.ndarray, int, np.ndarray]] = deque(maxlen=64)  # t, fix, k, R
         self.no_odometry_t = -math.inf  # end of the newest interval without odometry
         self.no_odometry_from_k = 0  # and the start of its stretch
+        self.imu_anchor: Optional[Tuple[float, float]] = None  # (t, speed) at the wheel fault's onset
         self.wheel_lock = WheelLock(p.wheel_lock_decel, p.noise.no_odometry_accel, self.REST_SPEED, self.dt)
         self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold,
                                          sigmas=p.wheel_slip_sigmas),
@@ -411,9 +413,17 @@ class Localizer:
             self.counters.intervals_without_odometry += 1
             if self.no_odometry_t < t0 - 1e-9:
                 self.no_odometry_from_k = k0  # the first keyframe of this stretch without odometry
+                self.imu_anchor = self._fault_onset(float(kin[0]))
             self.no_odometry_t = t1
-            graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), gtsam.Pose2(),
-                                               gtsam.noiseModel.Diagonal.Sigmas(np.array(nz.no_odometry))))
+            step, sigmas = gtsam.Pose2(), np.array(nz.no_odometry)
+            ahead = self._imu_advance(t0, t1)
+            if ahead is not None:
+                # The wheel lies (locked, slipping, dead): the IMU says how fast the body went
+                # since the fault began (a lock is a braking vehicle, a dead channel one that
+                # drives on: the first wheel reading after the onset cannot tell them apart)
+                step, sigmas[0] = gtsam.Pose2(ahead[0], 0.0, 0.0), ahead[1]
+                self.counters.intervals_imu_speed += 1
+            graph.add(gtsam.BetweenFactorPose2(X(k0), X(k1), step, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
             guess = prev
             before = self._pose(k0 - 1, values) if k0 - 1 >= self.oldest_k else None
             if before is not None and nz.no_odometry_accel > 0.0:
@@ -461,12 +471,46 @@ class Localizer:
 
     def _wheel_locked(self, t0: float, t1: float) -> bool:
         """Whether the wheel is locked over ``[t0, t1]`` (:mod:`.wheel_lock`); meanwhile the
-        interval has no odometry (the vehicle keeps its motion, give or take
-        ``no_odometry_accel``; the GPS says where it went)."""
+        interval has no odometry (the IMU's speed since the drop, :meth:`_imu_advance`; the
+        GPS says where it went)."""
         locked, events = self.wheel_lock.update(
             [(t, v) for t, (v, _) in self.states.stamped(t0 - 2.0 * self.dt, t1)], t0)
         self.events.extend(events)
         return locked
+
+    def _fault_onset(self, k_v: float) -> Optional[Tuple[float, float]]:
+        """When the wheel's fault that stops the odometry now began, and the vehicle's speed
+        then [m/s] (the wheel's, calibrated): the IMU's speed starts there. None without a
+        fault the wheel's own readings date (a silent vehicle state)."""
+        if self.slip is None:
+            return None
+        if self.slip.since is not None:
+            ta = self.slip.since - self.slip.p.window
+        elif self.wheel_lock.since is not None:
+            ta = self.wheel_lock.drop[0]
+        elif self.dead_wheel.since is not None:
+            ta = self.dead_wheel.since - self.dead_wheel.check_time - self.dt
+        else:
+            return None
+        v = self.slip.speed_at(ta)
+        return None if v is None else (ta, k_v * v)
+
+    def _imu_advance(self, t0: float, t1: float) -> Optional[Tuple[float, float]]:
+        """The body's forward advance over ``[t0, t1]`` [m] from the IMU's speed since the
+        fault's onset, and its sd [m]; None without an onset or past the IMU's horizon."""
+        a = self.imu_anchor
+        if a is None or self.slip is None or t1 - a[0] > self.slip.p.imu_horizon:
+            return None
+        ta, va = a
+        v = []
+        for t in (t0, t1):
+            dv = self.slip.body_change(ta, t)
+            if dv is None:
+                return None
+            # a vehicle that brakes to a standstill does not reverse
+            v.append(max(va + dv, 0.0) if va > 0.0 else min(va + dv, 0.0))
+        sd = self.p.noise.imu_speed_sd + self.p.noise.imu_speed_sd_per_s * (t1 - ta)
+        return 0.5 * (v[0] + v[1]) * (t1 - t0), sd * (t1 - t0)
 
     def _wheel_slip(self, t: float) -> bool:
         """Whether the wheels slip at ``t`` (:mod:`.wheel_slip`). When a slip begins the

@@ -35,8 +35,10 @@ off in the orchard, the fixes all at the truth). Two tests, either of which star
 A slip holds until the wheel reads rest, or the body's speed integrated from the IMU since
 the slip began meets the wheel's again for ``recover_time`` within ``imu_horizon`` of its
 start (the tyres found grip; later the integration has drifted too far to tell), or the
-fixes move as fast as the wheel says. Meanwhile the smoother takes no odometry (the
-vehicle keeps its motion, give or take ``no_odometry_accel``) and uses the fixes untested.
+fixes move as fast as the wheel says. Meanwhile the smoother takes no odometry (for
+``imu_horizon`` s from the fault's onset the IMU's speed, :meth:`WheelSlip.body_change`,
+then the vehicle keeps its motion, give or take ``no_odometry_accel``) and uses the fixes
+untested.
 
 Pure and ROS-free; the smoother feeds it its wheel speeds, IMU samples and fixes in time order.
 """
@@ -170,17 +172,18 @@ class WheelSlip:
             self.fixes.trim(t - self._keep())
 
     # ----------------------------------------------------------------- tests
-    def _speed_at(self, t: float) -> Optional[float]:
+    def speed_at(self, t: float) -> Optional[float]:
+        """The newest wheel speed at or before ``t`` [m/s]."""
         row = self.speeds.at(t)
         return row[0] if row is not None else None
 
     def _imu_test(self, t: float) -> Optional[str]:
         p = self.p
         t0 = t - p.window
-        v0, v1 = self._speed_at(t0), self._speed_at(t)
+        v0, v1 = self.speed_at(t0), self.speed_at(t)
         if v0 is None or v1 is None or not self.imu.t or self.imu.t[0] > t0:
             return None
-        dv_i = self._body_change(t0, t)
+        dv_i = self.body_change(t0, t)
         if dv_i is None:
             return None
         dv_w = v1 - v0
@@ -197,7 +200,7 @@ class WheelSlip:
         self.noise_t = t
         return None
 
-    def _body_change(self, t0: float, t1: float) -> Optional[float]:
+    def body_change(self, t0: float, t1: float) -> Optional[float]:
         """The body's speed change over ``(t0, t1]`` from the IMU: the specific force's
         integral plus gravity at the filter's pitch at ``t0`` carried on by the gyro alone
         (``sin(p0 + d) ~ sin(p0) + cos(p0) d``: a window is short), since the filter's pull
@@ -274,7 +277,7 @@ class WheelSlip:
     def update(self, t: float) -> bool:
         """Whether the wheels slip at ``t`` (the events to log in :attr:`events`)."""
         p = self.p
-        v = self._speed_at(t)
+        v = self.speed_at(t)
         if self.since is None:
             if v is None or abs(v) < p.rest_speed:
                 return False  # a wheel at rest claims no motion (a locked wheel is wheel_lock's)
@@ -283,10 +286,10 @@ class WheelSlip:
                 return False
             self.since, self.reason = t, why
             self.slips += 1
-            before = self._speed_at(t - p.window)
+            before = self.speed_at(t - p.window)
             # the body's speed since the window's start (the slip is seen at its end)
             a0, a1 = self.imu.at(t - p.window), self.imu.at(t)
-            dv = self._body_change(t - p.window, t) or 0.0
+            dv = self.body_change(t - p.window, t) or 0.0
             # the pitch before the window (the filter was not misled yet), on by the gyro
             self.pitch0 = a0[2] + (a1[4] - a0[4]) if a0 is not None and a1 is not None else 0.0
             self.body_speed = (before if before is not None else 0.0) + dv
