@@ -14,6 +14,15 @@ def settled_gate(**over):
     return g
 
 
+def clean_fixes(g, P, R, Q, n=10, period=0.2):
+    """Feed ``n`` fixes on the estimate with steps as estimated; the next fix's time."""
+    t = 0.0
+    for _ in range(n):
+        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
+        t += period
+    return t
+
+
 def feed(gate, sigma, offsets, rate=5.0, P=0.05, seed=0, group_n=None):
     """Feed fixes of white noise ``sigma`` (what the receiver reports) plus ``offsets[i]``
     (multipath: unseen by the receiver) against a perfect estimate of std ``P`` [m];
@@ -63,10 +72,7 @@ def test_an_outage_ends_a_jump_burst():
     g = settled_gate(group=0.0)
     R = np.eye(2) * 0.03 ** 2
     P = np.eye(2) * 0.05 ** 2
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, np.eye(2) * 1e-4)).use
-        t += 0.2
+    t = clean_fixes(g, P, R, np.eye(2) * 1e-4)
     jump = np.array([1.5, 0.0])
     assert not g.decide(t, jump, P, R, (), (jump, R, R, np.eye(2) * 1e-4)).use  # the burst starts
     t += 14.0  # outage, then the fixes are good again: the estimate (dead-reckoned) knows it is less sure
@@ -119,10 +125,7 @@ def test_a_jump_of_the_estimates_own_making_ends_when_the_estimate_can_no_longer
     g = settled_gate(group=0.0)
     R = np.eye(2) * 0.03 ** 2
     Q = np.eye(2) * 1e-4
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), np.eye(2) * 0.02 ** 2, R, (), (np.zeros(2), R, R, Q)).use
-        t += 0.2
+    t = clean_fixes(g, np.eye(2) * 0.02 ** 2, R, Q)
     slid = np.array([0.3, 0.0])
     verdicts = []
     for i in range(100):  # 20 s at 5 Hz, the estimate's std growing 2 cm a second
@@ -140,10 +143,7 @@ def test_a_sure_estimate_keeps_a_jump_burst_out():
     out until it jumps back."""
     g = settled_gate(group=0.0)
     R, P, Q = np.eye(2) * 0.03 ** 2, np.eye(2) * 0.03 ** 2, np.eye(2) * 1e-4
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
-        t += 0.2
+    t = clean_fixes(g, P, R, Q)
     off = np.array([1.2, 0.0])
     during = [g.decide(t + 0.2 * i, off, P, R, (), (off if i == 0 else np.zeros(2), R, R, Q)) for i in range(50)]
     assert not any(v.use for v in during)
@@ -160,10 +160,7 @@ def test_a_fault_found_later_does_not_let_an_earlier_burst_in(burst_before_fault
     jumped 5 m). A "burst" that began after it may be the estimate's own error: cleared."""
     g = settled_gate(group=0.0)
     R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 1e-3
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
-        t += 0.2
+    t = clean_fixes(g, P, R, Q)
     off = np.array([5.4, 0.0])
     assert not g.decide(t, off, P, R, (), (off, R, R, Q)).use  # the burst starts at t
     fault_from = t + 1.0 if burst_before_fault else t - 1.0
@@ -185,10 +182,7 @@ def test_a_burst_that_begins_while_unsettled_by_a_fault_is_still_a_jump():
     settled, no step is judged."""
     g = settled_gate(group=0.0)
     R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 0.3 ** 2  # Q: no odometry over the step
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
-        t += 0.2
+    t = clean_fixes(g, P, R, Q)
     g.unsettle(keep_burst_before=t - 1.0)
     wrong = np.array([1.0, 0.5])  # the estimate rode the spinning wheels: 1.1 m off, the fixes right
     settling = [g.decide(t + 0.2 * i, wrong, P, R, (), (np.zeros(2), R, R, Q)) for i in range(7)]
@@ -212,10 +206,7 @@ def test_a_burst_cleared_by_a_fault_leaves_no_step_judged_until_settled():
     ground at 3 m/s, seed 9)."""
     g = settled_gate(group=0.0)
     R, P, Q = np.eye(2) * 0.3 ** 2, np.eye(2) * 0.1 ** 2, np.eye(2) * 1e-3
-    t = 0.0
-    for _ in range(10):
-        assert g.decide(t, np.zeros(2), P, R, (), (np.zeros(2), R, R, Q)).use
-        t += 0.2
+    t = clean_fixes(g, P, R, Q)
     off = np.array([4.6, 0.0])
     assert not g.decide(t, off, P, R, (), (off, R, R, Q)).use
     g.unsettle(keep_burst_before=t - 0.2)  # the burst began after the fault's earliest start
