@@ -105,22 +105,10 @@ def _config(cls, package: str, name: str, s: Scenario, section: Optional[str]):
 
 def sim_params(s: Scenario, seed: int):
     """The simulator's parameters as ``sim_node`` builds them: ``sim.yaml``, the scenario's
-    ``sim:``, its ``actors:`` added, its ``map:`` (the world's trees and walls) and DEM
-    image resolved against the scenario's folder, the run's seed."""
-    from dataclasses import replace
+    ``sim:``, its world (:func:`quadrivio_sim.simulator.with_scenario_world`), the run's seed."""
+    from quadrivio_sim.simulator import with_scenario_world
 
-    from quadrivio_navigation.maps import resolve_map_file
-    from quadrivio_sim.actors import load_actors
-
-    p = _sim_params(s, seed)
-    if s.data.get("actors"):
-        p = replace(p, actors=p.actors + tuple(load_actors(s.data["actors"], f"{s.path}: actors")))
-    over = _section(s.data, "map")
-    world_map = replace_nested(p.map, over, f"{s.path}: map") if over else p.map
-    p = replace(p, map=replace(world_map, file=resolve_map_file(world_map.file, s.path)))
-    if p.terrain.image:
-        p = replace(p, terrain=replace(p.terrain, image=resolve_map_file(p.terrain.image, s.path)))
-    return p
+    return with_scenario_world(_sim_params(s, seed), s.data.get("actors"), _section(s.data, "map"), s.path, s.path)
 
 
 def _mount(vehicle, frame: str):

@@ -113,6 +113,28 @@ class JointSample:
     velocities: Tuple[float, ...]
 
 
+def with_scenario_world(p: "SimParams", actors, map_section, source: str, where: str) -> "SimParams":
+    """The simulator's parameters ``p`` with a scenario's world: its top-level ``actors``
+    (the ``actors:`` section's list, or None) added, its ``map:`` section (a dict, or None)
+    applied, and the map file and DEM image resolved against the scenario file ``source``.
+    ``sim_node`` and the one-process loop both build their world this way. ConfigError
+    naming ``where`` and the problem."""
+    from dataclasses import replace
+
+    from quadrivio_config import replace_nested
+    from quadrivio_navigation.maps import resolve_map_file
+
+    from .actors import load_actors
+
+    if actors:
+        p = replace(p, actors=p.actors + tuple(load_actors(actors, f"{where}: actors")))
+    world_map = replace_nested(p.map, map_section, f"{where}: map") if map_section else p.map
+    p = replace(p, map=replace(world_map, file=resolve_map_file(world_map.file, source)))
+    if p.terrain.image:  # a DEM image or GeoTIFF: relative to the scenario's folder, as the map
+        p = replace(p, terrain=replace(p.terrain, image=resolve_map_file(p.terrain.image, source)))
+    return p
+
+
 def steps_per_period(rate: float, dt: float, key: str) -> int:
     """Physics steps per sample period; the period must be a whole number of steps."""
     n = 1.0 / (rate * dt)

@@ -78,7 +78,6 @@ from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import (fatal, node_params, private_params, run_seed, site_params,
                                              split_params, vehicle_params, with_scenario)
 from quadrivio_description.urdf import build_urdf
-from quadrivio_navigation.maps import resolve_map_file
 from quadrivio_plc.msg import Setpoint
 from quadrivio_plc import protocol
 from quadrivio_sim.msg import RawGps
@@ -87,13 +86,12 @@ from quadrivio_sim.srv import Step, StepResponse
 from . import converters
 from quadrivio_runtime.ros.clock import set_own_time, take_clock_ownership
 from .lockstep_driver import LockstepDriver
-from ..actors import load_actors
 from ..actuators import ActuatorParams
 from ..paths import package_file
 from ..pacing import LoopHold, Pacer, StaleSlowdown
 from ..plc_emulator import DRIVING, EventThrottle, PlcServer, listening_exposure
 from ..script import load_script
-from ..simulator import SimParams, Simulator
+from ..simulator import SimParams, Simulator, with_scenario_world
 
 
 @dataclass(frozen=True)
@@ -154,21 +152,12 @@ class SimNode:
         node_raw, sim_raw = split_params(raw, NodeParams)
         self.node_params: NodeParams = node_params(NodeParams, node_raw)
         self.sim_params: SimParams = with_scenario(node_params(SimParams, sim_raw), "sim")
-        if rospy.has_param("/scenario/actors"):  # the scenario's top-level actors: section
-            try:
-                actors = load_actors(rospy.get_param("/scenario/actors"), "/scenario/actors")
-            except ConfigError as exc:
-                fatal(f"bad scenario parameter: {exc}")
-            self.sim_params = dataclasses.replace(self.sim_params, actors=self.sim_params.actors + actors)
-        # the scenario's map (the map_server's too) populates the world with its obstacles
-        world_map = with_scenario(self.sim_params.map, "map")
-        world_map = dataclasses.replace(world_map, file=resolve_map_file(world_map.file,
-                                                                         rospy.get_param("/scenario/source", "")))
-        self.sim_params = dataclasses.replace(self.sim_params, map=world_map)
-        terrain = self.sim_params.terrain
-        if terrain.image:  # a DEM image or GeoTIFF: relative to the scenario's folder, as the map
-            self.sim_params = dataclasses.replace(self.sim_params, terrain=dataclasses.replace(
-                terrain, image=resolve_map_file(terrain.image, rospy.get_param("/scenario/source", ""))))
+        try:  # the scenario's actors and map (the map_server's too: the world's obstacles), DEM
+            self.sim_params = with_scenario_world(
+                self.sim_params, rospy.get_param("/scenario/actors", None), rospy.get_param("/scenario/map", None),
+                rospy.get_param("/scenario/source", ""), "/scenario")
+        except ConfigError as exc:
+            fatal(f"bad scenario parameter: {exc}")
         if rospy.has_param("/run/seed") or rospy.has_param("/scenario/seed"):
             self.sim_params = dataclasses.replace(self.sim_params, seed=run_seed())
         self.vehicle = vehicle_params()
