@@ -122,7 +122,7 @@ def sweep(direction: int, h0: float, h1: float, rate: float, speed: float, lengt
     k = max(1, int(math.ceil(length / ds)))
     s = ds * np.arange(k + 1)
     t = s / max(abs(speed), 0.3)  # the handlebar turns by the time it takes to get there
-    h = h0 + np.clip(h1 - h0, -rate * t, rate * t)
+    h = h0 + np.minimum(np.maximum(h1 - h0, -rate * t), rate * t)
     kappa = np.tan(ratio * h) / wheelbase
     dtheta = direction * kappa[:-1] * ds
     theta = np.concatenate([[0.0], np.cumsum(dtheta)])

@@ -181,7 +181,7 @@ def distance_to_edges(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     ab = b - a
     denom = np.maximum(np.sum(ab * ab, axis=1), 1e-12)
     d = points[:, None, :] - a[None, :, :]
-    u = np.clip(np.sum(d * ab[None], axis=2) / denom[None], 0.0, 1.0)
+    u = np.minimum(np.maximum(np.sum(d * ab[None], axis=2) / denom[None], 0.0), 1.0)
     closest = a[None] + u[..., None] * ab[None]
     return np.min(np.hypot(*(points[:, None, :] - closest).transpose(2, 0, 1)), axis=1)
 

@@ -172,7 +172,8 @@ def distance_to_polyline(points: np.ndarray, x: float, y: float) -> float:
     """Shortest distance from (x, y) to a polyline (segment-exact)."""
     a, b = points[:-1], points[1:]
     ab = b - a
-    t = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / np.maximum((ab ** 2).sum(1), 1e-12), 0, 1)
+    t = ((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / np.maximum((ab ** 2).sum(1), 1e-12)
+    t = np.minimum(np.maximum(t, 0.0), 1.0)
     px, py = a[:, 0] + t * ab[:, 0], a[:, 1] + t * ab[:, 1]
     return float(np.sqrt(np.min((px - x) ** 2 + (py - y) ** 2)))
 

@@ -327,7 +327,7 @@ class LaserNoise:
         noisy = r + self.rng.normal(0.0, self.p.range_std, r.shape)
         lost = self.rng.random(r.shape) < self.p.dropout
         valid = np.isfinite(r) & ~lost
-        out = np.where(valid, np.clip(noisy, range_min, range_max), math.inf)
+        out = np.where(valid, np.minimum(np.maximum(noisy, range_min), range_max), math.inf)
         return out.tolist()
 
 

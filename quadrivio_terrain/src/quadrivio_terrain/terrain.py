@@ -90,8 +90,9 @@ class Heightfield:
     def heights(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Bilinear heights at arrays of points (:meth:`height` for many points)."""
         rows, cols = self.z.shape
-        fx = np.clip((np.asarray(x, float) - self.x0) / self.res, 0.0, cols - 1.000001)
-        fy = np.clip((np.asarray(y, float) - self.y0) / self.res, 0.0, rows - 1.000001)
+        # not np.clip: 8 times slower on a few points (the guard's and the layer's calls)
+        fx = np.minimum(np.maximum((np.asarray(x, float) - self.x0) / self.res, 0.0), cols - 1.000001)
+        fy = np.minimum(np.maximum((np.asarray(y, float) - self.y0) / self.res, 0.0), rows - 1.000001)
         j, i = fx.astype(int), fy.astype(int)
         tx, ty = fx - j, fy - i
         z = self.z
