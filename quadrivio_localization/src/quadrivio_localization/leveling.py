@@ -29,7 +29,7 @@ import math
 from bisect import bisect_right
 from typing import List, Optional, Sequence, Tuple
 
-from quadrivio_description.frames import level, rotate, tilt_from_gravity
+from quadrivio_description.frames import Vec3, level, rotate, tilt_from_gravity
 from quadrivio_description.vehicle import VehicleParams
 
 
@@ -54,6 +54,7 @@ class Leveller:
         self.tau = tilt_tau
         self.stale_after = stale_after  # [s] a wheel speed older than this says nothing of the acceleration now
         self.roll = self.pitch = 0.0
+        self.body: Tuple[Vec3, Vec3] = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # the newest IMU sample in base_link
         self.t: Optional[float] = None  # time of the newest sample that set the tilt
         self.t0: Optional[float] = None  # time of the first such sample
         self.n = 0  # samples that set the tilt
@@ -96,8 +97,10 @@ class Leveller:
         return max(self.stale_after, 3.0 * (ts[-1] - ts[-2])) if len(ts) >= 2 else self.stale_after
 
     def add_imu(self, t: float, f: Sequence[float], w: Sequence[float]) -> float:
-        """Update the tilt from one IMU sample; returns the yaw rate about the vertical [rad/s]."""
+        """Update the tilt from one IMU sample; returns the yaw rate about the vertical [rad/s].
+        The sample in base_link axes is kept in :attr:`body` (f, w) for the other users."""
         fb, wb = rotate(self.imu_mount, f), rotate(self.imu_mount, w)
+        self.body = (fb, wb)
         v, dv = self.speed_and_accel(t)
         g = (fb[0] - dv, fb[1] - v * wb[2], fb[2])
         if abs(math.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2) / G - 1.0) > GRAVITY_BAND:

@@ -44,7 +44,6 @@ import gtsam
 import numpy as np
 
 from quadrivio_description.attitude import imu_lever
-from quadrivio_description.frames import rotate
 from quadrivio_description.kinematics import max_delta
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
@@ -163,7 +162,6 @@ class Localizer:
         self.slip = WheelSlip(SlipParams(window=p.wheel_slip_window, threshold=p.wheel_slip_threshold,
                                          sigmas=p.wheel_slip_sigmas),
                               lever=imu_lever(vehicle)) if p.wheel_slip_threshold > 0.0 else None
-        self.imu_mount = vehicle.sensors["imu_link"].rpy
         self.prev_fix: Optional[Tuple[float, np.ndarray, int, np.ndarray]] = None  # t, fix, keyframe, R
         self.dead_wheel = DeadWheel(p.wheel_check_rate, p.wheel_check_time, self.REST_SPEED, self.dt)
         self.events: List[str] = []  # for the node's log
@@ -202,7 +200,7 @@ class Localizer:
             return
         self.gyro.append(t, self.leveller.add_imu(t, f, w))
         if self.slip is not None:
-            self.slip.add_imu(t, rotate(self.imu_mount, f), rotate(self.imu_mount, w))
+            self.slip.add_imu(t, *self.leveller.body)
         self.latest_t = max(self.latest_t, t)
 
     def add_mag(self, t: float, m: Tuple[float, float, float]) -> None:
