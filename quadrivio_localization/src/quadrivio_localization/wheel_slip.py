@@ -12,9 +12,9 @@ off in the orchard, the fixes all at the truth). Two tests, either of which star
   ``dv_i``: a slip when the wheel gained more than the body in the direction of motion,
   ``sgn(v) (dv_w - dv_i) > max(threshold, fraction |dv_w|, sigmas rms)``, ``rms`` the
   discrepancy's own root mean square over the last ``noise_tau`` s without a slip: on flat
-  ground 0.1 m/s, on 8 cm bumps at 3 m/s 0.25-0.3 m/s (the wheel climbs each bump face, the
-  pitch filter lags the bumps), where a fixed threshold of 0.8 m/s is 3 of them and fired on
-  bumps a dozen times a run. A wheel that spins up while
+  ground about 0.1 m/s, on 8 cm bumps at 3 m/s 0.15-0.3 m/s (the wheel climbs each bump
+  face and spins up as a bump unloads it), where a fixed threshold of 0.8 m/s is 3 of them
+  and fired on bumps (20 false slips in 20 rough-terrain runs). A wheel that spins up while
   the body does not accelerate, or a body that stops dead (an impact) while the wheel
   turns on, both show within ``window`` (a wheel that loses speed the body keeps is a
   locked one: :mod:`.wheel_lock`). The pitch is the guard's complementary filter
