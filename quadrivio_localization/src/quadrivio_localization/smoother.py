@@ -506,7 +506,7 @@ class Localizer:
             if dv is None:
                 return None
             # a vehicle that brakes to a standstill does not reverse
-            v.append(max(va + dv, 0.0) if va > 0.0 else min(va + dv, 0.0))
+            v.append(max(va + dv, 0.0) if va > 0.0 else (min(va + dv, 0.0) if va < 0.0 else dv))
         sd = self.p.noise.imu_speed_sd + self.p.noise.imu_speed_sd_per_s * (t1 - ta)
         return 0.5 * (v[0] + v[1]) * (t1 - t0), sd * (t1 - t0)
 
