@@ -93,3 +93,15 @@ def test_turning_while_tilted_moves_no_angle(roll_deg, pitch_deg):
         t += 0.01
     assert att.roll == pytest.approx(roll, abs=math.radians(0.1))
     assert att.pitch == pytest.approx(pitch, abs=math.radians(0.1))
+
+
+def test_a_start_in_free_fall_waits_for_a_sample_of_one_g():
+    # the simulator's spawn: the first sample after the drop reads 0.2 g with the x of a 4 deg slope
+    a = Attitude(start_band=0.1)
+    a.add_imu(0.00, (0.68, 0.0, 2.15), (0.0, 0.0, 0.0))
+    assert not a.started
+    a.add_imu(0.01, (0.68, 0.0, 9.78), (0.0, 0.0, 0.0))
+    assert a.started and abs(math.degrees(a.pitch) + 4.0) < 0.1
+    b = Attitude()  # any first sample (the roscpp guard's copy)
+    b.add_imu(0.00, (0.68, 0.0, 2.15), (0.0, 0.0, 0.0))
+    assert b.started and math.degrees(b.pitch) < -15.0

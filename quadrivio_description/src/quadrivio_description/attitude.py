@@ -53,6 +53,7 @@ import math
 from typing import Optional, Sequence
 
 from quadrivio_description.frames import tilt_from_gravity
+from quadrivio_description.vehicle import GRAVITY
 
 
 def imu_lever(vehicle) -> tuple:
@@ -62,9 +63,12 @@ def imu_lever(vehicle) -> tuple:
 
 class Attitude:
     def __init__(self, tau: float = 4.0, max_accel: float = 8.0, speed_timeout: float = 0.25,
-                 max_bias: float = 0.05, lever: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
+                 max_bias: float = 0.05, lever: Sequence[float] = (0.0, 0.0, 0.0),
+                 start_band: float = math.inf) -> None:
         self.lever = tuple(float(c) for c in lever)
         self.tau, self.max_accel, self.speed_timeout, self.max_bias = tau, max_accel, speed_timeout, max_bias
+        self.start_band = start_band  # [1] the first sample used weighs 1 g within this fraction (the roscpp
+        #                               guard's copy starts on any: inf)
         self.roll = self.pitch = 0.0
         self.bias_roll = self.bias_pitch = 0.0  # [rad/s] learnt from the pull, subtracted from the rates
         self.t: Optional[float] = None  # the newest IMU sample's time
@@ -90,7 +94,11 @@ class Attitude:
         g = (f[0] - (self.accel if fresh else 0.0), f[1] - v * w[2], f[2])
         roll_g, pitch_g = tilt_from_gravity(g)
         if not self.started:
-            self.roll, self.pitch, self.started, self.t = roll_g, pitch_g, True, t
+            # Start on a sample that weighs about 1 g (``start_band``): the first samples of a
+            # vehicle dropped onto its wheels (the simulator's spawn) read 0.2 g, 15 deg off, and
+            # tau carried that error for seconds (the slip test took it for a wheel slip)
+            if abs(math.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]) / GRAVITY - 1.0) <= self.start_band:
+                self.roll, self.pitch, self.started, self.t = roll_g, pitch_g, True, t
             return
         dt = t - self.t
         self.t = t

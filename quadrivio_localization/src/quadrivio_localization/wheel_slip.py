@@ -107,7 +107,7 @@ class WheelSlip:
     def __init__(self, p: SlipParams = SlipParams(), lever: Sequence[float] = (0.0, 0.0, 0.0)) -> None:
         """``lever``: the IMU's position in base_link [m]."""
         self.p = p
-        self.attitude = Attitude(p.attitude_tau, lever=lever)
+        self.attitude = Attitude(p.attitude_tau, lever=lever, start_band=0.1)
         self.speeds = _Stream()  # (v,)
         # (f_x, pitch rate, filtered pitch, integral of f_x, integral of the pitch rate (pitch change), integral
         # of that, the x of w x lever: the IMU's speed over base_link's)
