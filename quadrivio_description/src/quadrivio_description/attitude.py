@@ -76,6 +76,7 @@ class Attitude:
         self.speed: Optional[tuple] = None  # (t, v) newest wheel speed
         self.accel = 0.0  # [m/s^2] the wheel speed's newest slope
         self.accel_ok = False
+        self.f_origin: Sequence[float] = (0.0, 0.0, 0.0)
 
     def add_speed(self, t: float, v: float) -> None:
         if self.speed is not None and t > self.speed[0]:
@@ -91,6 +92,7 @@ class Attitude:
         fresh = self.speed is not None and t - self.speed[0] <= self.speed_timeout
         v = self.speed[1] if fresh else 0.0
         f = self.without_lever(f, w)
+        self.f_origin = f  # the newest sample's specific force at base_link's origin (for other users)
         g = (f[0] - (self.accel if fresh else 0.0), f[1] - v * w[2], f[2])
         roll_g, pitch_g = tilt_from_gravity(g)
         if not self.started:

@@ -144,7 +144,7 @@ class WheelSlip:
         if not att.started and len(self.speeds.t) < 2:
             return  # the filter starts on the accelerometer's tilt: with the wheel's acceleration out of it
         att.add_imu(t, f, w)
-        fx = att.without_lever(f, w)[0]
+        fx = att.f_origin[0]
         rate = w[1] * math.cos(att.roll) - w[2] * math.sin(att.roll) - att.bias_pitch  # the pitch's rate
         u = w[1] * att.lever[2] - w[2] * att.lever[1]
         cf = th = cth = 0.0
