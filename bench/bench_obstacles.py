@@ -272,6 +272,7 @@ def main() -> None:
     result["obstacle_false_stops"] = int(sum(r.get("false_stops") or 0 for r in ok if r["scenario"] in WITHOUT))
     result["obstacle_false_stops_all"] = int(sum(r.get("false_stops") or 0 for r in ok))
     result["obstacle_protective_stops"] = int(sum(r.get("protective_stops") or 0 for r in ok))
+    result["obstacle_anticipated_stops"] = int(sum(r.get("anticipated_stops") or 0 for r in ok))
     lat_from = [r for r in latency_runs if not r.get("failed")] if args.runner == "in_process" else ok
     lat = [x for r in lat_from for x in (r.get("stop_latencies_ms") or [])]
     result["obstacle_stop_latency_p99_ms"] = float(np.percentile(lat, 99)) if lat else None
@@ -299,6 +300,7 @@ def main() -> None:
                                      default=None),
               "protective_stops": int(sum(r.get("protective_stops") or 0 for r in rs)),
               "false_stops": int(sum(r.get("false_stops") or 0 for r in rs)),
+              "anticipated_stops": int(sum(r.get("anticipated_stops") or 0 for r in rs)),
               "fault_stops": int(sum(r.get("fault_stops") or 0 for r in rs)),
               "time_blocked_s_mean": float(np.mean([r.get("time_blocked_s") or 0.0 for r in rs])),
               "xte_max_m": max((r["xte_max_m"] for r in rs if r.get("xte_max_m") is not None), default=None)}

@@ -76,6 +76,14 @@ def test_protective_stops_judged_by_the_ground_truth():
     beside = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
                      vehicle=vehicle, guard=guard_series(rows), actors=person(5.0 + FP.front + 0.5, 2.5), contacts=[])
     assert obstacle_metrics(beside, V)["false_stops"] == 1
+    # ...unless they walk into it within the anticipation (a stop for where they will be)
+    walking = [(5.0, [("bob", "person", "cylinder", 5.0 + FP.front + 0.5, 2.5, 0.0, 0.6, 0.6)]),
+               (6.0, [("bob", "person", "cylinder", 5.0 + FP.front + 0.5, 1.0, 0.0, 0.6, 0.6)])]
+    crossing = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                       vehicle=vehicle, guard=guard_series(rows), actors=walking, contacts=[])
+    m = obstacle_metrics(crossing, V)
+    assert m["false_stops"] == 0 and m["anticipated_stops"] == 1
+    assert obstacle_metrics(crossing, V, anticipation=0.3)["false_stops"] == 1
 
 
 def test_contacts_count_with_body_and_speed():

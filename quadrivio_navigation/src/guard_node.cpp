@@ -498,6 +498,14 @@ private:
     add("protective stops", std::to_string(core_->protective_stops));
     add("fail-safe stops", std::to_string(core_->fault_stops));
     add("zone stops", std::to_string(core_->zone_stops));
+    std::string tracked;
+    for (size_t i = 0; i < config_.params.scanners.size(); ++i)
+    {
+      const g::MotionTracker& tr = core_->tracker(i);
+      tracked += g::format("%s%s: %d moving of %zu tracked", i ? ", " : "", config_.params.scanners[i].topic.c_str(),
+                           tr.prediction.moving, tr.tracks().size());
+    }
+    add("moving obstacles", tracked);
     add("ground returns (DEM)", config_.terrain.empty() ? "no DEM" : std::to_string(ground_returns_));
     add("inputs rejected", inputs_.summary());
     diagnostic_msgs::DiagnosticArray a;

@@ -222,3 +222,39 @@ def test_dem_ground_matches_the_python_test():
         assert np.array_equal(g, e)
         some += int(e.sum())
     assert some > 20, "the random scans hardly touched the ground: the comparison tests little"
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_moving_obstacles_match_the_python_core(seed):
+    """A drive past trees with people crossing ahead: the tracks (tracks.py, the C++
+    MotionTracker) and the decisions on where they will be are the same."""
+    from test_tracks import raycast
+    vehicle = load_vehicle()
+    p = GuardParams()
+    rng = np.random.default_rng(seed)
+    trees = [(x, y, 0.15) for x in np.arange(4.0, 40.0, 1.5) for y in (-2.5, 2.5)]
+    people = [(float(rng.uniform(9, 20)), float(rng.choice([-1, 1])) * float(rng.uniform(0.8, 1.8)),
+               float(rng.uniform(0.25, 0.35)), float(rng.uniform(0.0, 3.0))) for _ in range(3)]  # x, speed, r, start
+    people[0] = (float(rng.uniform(14, 16)), 1.4, 0.3, float(rng.uniform(1.5, 2.0)))  # one steps out ~8 m ahead
+    events, x, y, yaw, v = [], 0.0, 0.0, 0.0, 2.5
+    for k in range(400):
+        t = 1.0 + 0.02 * k
+        h = 0.015 * math.sin(0.7 * t)  # weaving gently along the lane
+        v = max(0.0, v + float(rng.normal(0, 0.05)))
+        events.append(("state", t, v, h))
+        if k % 5 == 0:
+            circles = list(trees)
+            for px, u, r, t0 in people:
+                y0 = -2.8 if u > 0 else 2.8  # from behind a tree row
+                circles.append((px, y0 + u * max(0.0, t - 1.0 - t0), r))
+            pts = raycast((x, y, yaw), circles, mount=(1.7, 0.0), rng=rng, noise=0.01)
+            events.append(("scan", 0, t - 0.03, 541, 0, pts))
+            events.append(("scan", 1, t - 0.03, 541, 0, np.zeros((0, 2))))
+        events.append(("decide", t, 3.0, h, 0.0))
+        w = v * math.tan(vehicle.steering.ratio * h) / vehicle.wheelbase
+        x, y, yaw = x + v * math.cos(yaw) * 0.02, y + v * math.sin(yaw) * 0.02, yaw + w * 0.02
+    cpp = _run(_config(p, vehicle), _script(events))
+    py = _python(events, p, vehicle)
+    _compare(py, cpp)
+    moving = [d.reason for d, *_ in py if "moving obstacle" in d.reason]
+    assert moving, "no decision acted on a moving obstacle: the comparison tests little"

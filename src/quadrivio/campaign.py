@@ -147,7 +147,7 @@ def _closed_loop_figures(s, seed: int, m: Dict, completed: bool) -> Dict:
             "wall_s": m.get("wall_duration_s"), "sim_s": m.get("sim_duration_s"), "xte_rmse_m": m.get("xte_rmse_m"),
             "completed": None if m.get("completed") is None else float(bool(m.get("completed"))),
             **{k: m.get(k) for k in ("collisions", "min_clearance_m", "protective_stops", "false_stops",
-                                     "time_blocked_s", "goal_position_error_m")}}
+                                     "anticipated_stops", "time_blocked_s", "goal_position_error_m")}}
 
 
 def flatten(fig: Dict) -> Dict:

@@ -13,7 +13,10 @@
 * ``false_stops``: protective stops at a moment when, in the ground truth, no body lay in
   the footprint swept from the true pose as the guard swept it (its direction, from the
   measured handlebar toward the requested one) over the protective distance plus
-  ``tolerance`` (nothing was there to stop for);
+  ``tolerance``, nor entered it within the next ``anticipation`` seconds (the guard's
+  ``track_horizon``: it stops for where a moving obstacle will be): nothing was there to
+  stop for; ``anticipated_stops``: those for a body that was not in that field yet but
+  entered it within ``anticipation``;
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
@@ -138,7 +141,7 @@ def _at(series, key: str, t: float) -> float:
     return float(series[key][i])
 
 
-def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
+def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float = 2.0) -> Dict[str, object]:
     """The obstacle keys of ``metrics.json`` (see the module docstring); {} without a guard,
     actors or contacts in the run."""
     from quadrivio_navigation.costmap import Footprint
@@ -163,7 +166,7 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
     out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT and moving[i]))  # a stop, not a start-up
     out["zone_stops"] = int(sum(1 for i in entered if action[i] == STOP and g["zone"][i] == 1))
     fixed = map_points(run.map)
-    false, latencies, by_motion = 0, [], 0
+    false, anticipated, latencies, by_motion = 0, 0, [], 0
     sp = run.setpoint
     pad = Footprint.from_vehicle(vehicle, 0.15)
     for i in stops:
@@ -183,14 +186,25 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
             speed = abs(float(g["measured"][i])) if "measured" in g.cols else 1.0
             poses = sweep(direction, h0, h1, vehicle.steering.max_rate, speed, length, 0.05, vehicle.wheelbase,
                           vehicle.steering.ratio)
+            c, s = math.cos(yaw), math.sin(yaw)
+
+            def in_field(pts) -> bool:
+                if len(pts) == 0:
+                    return False
+                local = np.column_stack([c * (pts[:, 0] - x) + s * (pts[:, 1] - y),
+                                         -s * (pts[:, 0] - x) + c * (pts[:, 1] - y)])
+                return math.isfinite(free_distance(pad, poses, local, 0.05).distance)
+
             pts = actors_at(run.actors, t)
             if len(fixed):
                 pts = np.concatenate([pts, fixed]) if len(pts) else fixed
-            c, s = math.cos(yaw), math.sin(yaw)
-            local = np.column_stack([c * (pts[:, 0] - x) + s * (pts[:, 1] - y),
-                                     -s * (pts[:, 0] - x) + c * (pts[:, 1] - y)]) if len(pts) else pts
-            if len(local) == 0 or not math.isfinite(free_distance(pad, poses, local, 0.05).distance):
-                false += 1
+            if not in_field(pts):
+                later = run.actors and any(in_field(actors_at(run.actors, t + tau))
+                                           for tau in np.arange(0.1, anticipation + 1e-9, 0.1))
+                if later:
+                    anticipated += 1
+                else:
+                    false += 1
         scan = float(g["scan_stamp"][i])
         if len(sp) and math.isfinite(scan) and scan > 0.0:
             start = scan
@@ -201,6 +215,7 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5) -> Dict[str, object]:
             if len(after):
                 latencies.append(1e3 * (float(sp.t[after[0]]) - start))
     out["false_stops"] = false
+    out["anticipated_stops"] = anticipated
     out["stop_latencies_ms"] = latencies
     out["stops_entered_by_motion"] = by_motion
     # from each stop's decision (protective or fail-safe) to the vehicle's standstill

@@ -431,6 +431,283 @@ inline std::vector<char> demGround(const Heightfield& hf, const double pos[3], c
   return out;
 }
 
+// ---------------------------------------------------------------- moving obstacles (tracks.py)
+struct TrackParams
+{
+  double horizon = 2.0, cluster_gap = 0.3, max_extent = 1.25, max_range = 15.0, gate = 0.3, max_speed = 5.0,
+         min_speed = 0.5, window = 0.8;
+  int min_obs = 3;
+  double min_span = 0.15, max_residual = 0.08, min_travel = 0.3;
+  int min_points = 3;
+  double shape_change = 0.25, coast = 0.5, step = 0.1;
+  int max_points = 8;
+  double clearance = 0.2;
+  size_t max_tracks = 200;
+};
+
+struct Prediction
+{
+  std::vector<Point> xy;     // the scan's base_link
+  std::vector<double> speed;  // [m/s] of the track each point is from
+  int moving = 0;
+};
+
+// [start, end) ranges of the points (ray order) split where neighbours are more than gap apart
+inline std::vector<std::pair<size_t, size_t>> clusters(const std::vector<Point>& xy, double gap)
+{
+  std::vector<std::pair<size_t, size_t>> out;
+  if (xy.empty())
+    return out;
+  size_t start = 0;
+  for (size_t i = 1; i < xy.size(); ++i)
+  {
+    const double dx = xy[i].x - xy[i - 1].x, dy = xy[i].y - xy[i - 1].y;
+    if (dx * dx + dy * dy > gap * gap)
+    {
+      out.emplace_back(start, i);
+      start = i;
+    }
+  }
+  out.emplace_back(start, xy.size());
+  return out;
+}
+
+class MotionTracker
+{
+public:
+  struct Obs
+  {
+    double t, x, y;
+  };
+  struct Track
+  {
+    long ident = 0;
+    std::vector<Obs> hist;
+    double radius = 0.0, last_t = 0.0, vx = 0.0, vy = 0.0;
+    bool moving = false, moved = false;
+  };
+
+  explicit MotionTracker(const TrackParams& p = TrackParams()) : p_(p) {}
+
+  void reset()
+  {
+    tracks_.clear();
+    last_stamp = -kInf;
+    prediction = Prediction();
+  }
+
+  // A scan's points (base_link, ray order) at ``stamp`` with the odometric pose (x, y, yaw) then
+  const Prediction& update(double stamp, const std::vector<Point>& xy, double ex, double ey, double eyaw)
+  {
+    const TrackParams& p = p_;
+    if (p.horizon <= 0.0 || !(stamp > last_stamp))
+      return prediction;
+    last_stamp = stamp;
+    const double c = std::cos(eyaw), s = std::sin(eyaw);
+    struct Found
+    {
+      double x, y, r;
+      size_t a, b;
+    };
+    std::vector<Found> found;
+    for (const auto& ab : clusters(xy, p.cluster_gap))
+    {
+      double sx = 0.0, sy = 0.0;
+      for (size_t i = ab.first; i < ab.second; ++i)
+      {
+        sx += xy[i].x;
+        sy += xy[i].y;
+      }
+      const double n = static_cast<double>(ab.second - ab.first);
+      const double bx = sx / n, by = sy / n;
+      double r = 0.0;
+      for (size_t i = ab.first; i < ab.second; ++i)
+      {
+        const double dx = xy[i].x - bx, dy = xy[i].y - by;
+        r = std::max(r, std::sqrt(dx * dx + dy * dy));
+      }
+      if (static_cast<long>(ab.second - ab.first) < p.min_points || r > p.max_extent ||
+          bx * bx + by * by > p.max_range * p.max_range)
+        continue;
+      found.push_back(Found{ ex + c * bx - s * by, ey + s * bx + c * by, r, ab.first, ab.second });
+    }
+    std::vector<Track> live;
+    for (const Track& k : tracks_)
+      if (stamp - k.last_t <= p.coast)
+        live.push_back(k);
+    struct Pair
+    {
+      double d;
+      size_t ti, ci;
+      bool operator<(const Pair& o) const
+      {
+        if (d != o.d)
+          return d < o.d;
+        if (ti != o.ti)
+          return ti < o.ti;
+        return ci < o.ci;
+      }
+    };
+    std::vector<Pair> pairs;
+    for (size_t ti = 0; ti < live.size(); ++ti)
+    {
+      const Track& k = live[ti];
+      const double dt = stamp - k.last_t;
+      const double px = k.hist.back().x + k.vx * dt, py = k.hist.back().y + k.vy * dt;
+      const double gate = p.gate + p.max_speed * dt;
+      for (size_t ci = 0; ci < found.size(); ++ci)
+      {
+        const double dx = found[ci].x - px, dy = found[ci].y - py;
+        const double d = std::sqrt(dx * dx + dy * dy);
+        if (d <= gate)
+          pairs.push_back(Pair{ d, ti, ci });
+      }
+    }
+    std::sort(pairs.begin(), pairs.end());
+    std::vector<bool> used_t(live.size(), false), used_c(found.size(), false);
+    std::vector<long> matched(found.size(), -1);
+    for (const Pair& pr : pairs)
+    {
+      if (used_t[pr.ti] || used_c[pr.ci])
+        continue;
+      used_t[pr.ti] = used_c[pr.ci] = true;
+      matched[pr.ci] = static_cast<long>(pr.ti);
+    }
+    std::vector<Track> next;
+    for (size_t ti = 0; ti < live.size(); ++ti)
+      if (!used_t[ti])
+        next.push_back(live[ti]);
+    Prediction out;
+    for (size_t ci = 0; ci < found.size(); ++ci)
+    {
+      const Found& f = found[ci];
+      Track k;
+      if (matched[ci] >= 0)
+        k = live[static_cast<size_t>(matched[ci])];
+      else
+      {
+        k.ident = next_id_++;
+        k.radius = f.r;
+        k.last_t = stamp;
+      }
+      if (std::fabs(f.r - k.radius) > p.shape_change)
+        k.hist.clear();
+      std::vector<Obs> kept;
+      for (const Obs& o : k.hist)
+        if (o.t >= stamp - p.window)
+          kept.push_back(o);
+      kept.push_back(Obs{ stamp, f.x, f.y });
+      k.hist = kept;
+      k.radius = f.r;
+      k.last_t = stamp;
+      double vx = 0.0, vy = 0.0;
+      const bool ok = fit(k.hist, vx, vy);
+      const double speed = ok ? std::sqrt(vx * vx + vy * vy) : 0.0;
+      k.moving = ok && p.min_speed <= speed && speed <= p.max_speed &&
+                 speed * (k.hist.back().t - k.hist.front().t) >= p.min_travel + f.r;
+      k.vx = ok ? vx : 0.0;
+      k.vy = ok ? vy : 0.0;
+      k.moved = k.moved || k.moving;
+      next.push_back(k);
+      if (k.moving)
+      {
+        ++out.moving;
+        predict(xy, f.a, f.b, c * k.vx + s * k.vy, -s * k.vx + c * k.vy, speed, out);
+      }
+      else if (k.moved)
+        predict(xy, f.a, f.b, 0.0, 0.0, 0.0, out);
+    }
+    std::stable_sort(next.begin(), next.end(), [](const Track& a, const Track& b) { return a.ident < b.ident; });
+    if (next.size() > p.max_tracks)
+      next.erase(next.begin(), next.end() - static_cast<long>(p.max_tracks));
+    tracks_ = next;
+    prediction = out;
+    return prediction;
+  }
+
+  const std::vector<Track>& tracks() const { return tracks_; }
+  double last_stamp = -kInf;
+  Prediction prediction;
+
+private:
+  bool fit(const std::vector<Obs>& h, double& vx, double& vy) const
+  {
+    const size_t n = h.size();
+    if (static_cast<long>(n) < p_.min_obs || h.back().t - h.front().t < p_.min_span)
+      return false;
+    double st = 0.0, sx = 0.0, sy = 0.0;
+    for (const Obs& o : h)
+    {
+      st += o.t;
+      sx += o.x;
+      sy += o.y;
+    }
+    const double dn = static_cast<double>(n);
+    const double mt = st / dn, mx = sx / dn, my = sy / dn;
+    double stt = 0.0, stx = 0.0, sty = 0.0;
+    for (const Obs& o : h)
+    {
+      const double dt = o.t - mt;
+      stt += dt * dt;
+      stx += dt * (o.x - mx);
+      sty += dt * (o.y - my);
+    }
+    if (stt <= 0.0)
+      return false;
+    vx = stx / stt;
+    vy = sty / stt;
+    for (const Obs& o : h)
+    {
+      const double ex = o.x - (mx + vx * (o.t - mt)), ey = o.y - (my + vy * (o.t - mt));
+      if (ex * ex + ey * ey > p_.max_residual * p_.max_residual)
+        return false;
+    }
+    return true;
+  }
+
+  void predict(const std::vector<Point>& xy, size_t a, size_t b, double ux, double uy, double speed,
+               Prediction& out) const
+  {
+    const long n = static_cast<long>(b - a);
+    const long k = std::min<long>(n, p_.max_points);
+    std::vector<size_t> idx;
+    if (k > 1)
+      for (long i = 0; i < k; ++i)
+        idx.push_back(a + static_cast<size_t>((i * (n - 1)) / (k - 1)));
+    else
+      idx.push_back(a);
+    const long steps =
+        speed > 0.0 ? std::max<long>(1, static_cast<long>(std::ceil(speed * p_.horizon / p_.step))) : 0;
+    const double cl = p_.clearance;
+    for (long j = 0; j <= steps; ++j)
+    {
+      const double tau = steps ? p_.horizon * static_cast<double>(j) / static_cast<double>(steps) : 0.0;
+      for (size_t i : idx)
+      {
+        const double x = xy[i].x + ux * tau, y = xy[i].y + uy * tau;
+        if (j > 0)
+        {
+          out.xy.push_back(Point{ x, y });
+          out.speed.push_back(speed);
+        }
+        if (cl > 0.0)
+        {
+          const Point copies[4] = { { x + cl, y }, { x - cl, y }, { x, y + cl }, { x, y - cl } };
+          for (const Point& q : copies)
+          {
+            out.xy.push_back(q);
+            out.speed.push_back(speed);
+          }
+        }
+      }
+    }
+  }
+
+  TrackParams p_;
+  std::vector<Track> tracks_;
+  long next_id_ = 0;
+};
+
 // ---------------------------------------------------------------- the guard (guard.py)
 struct Scanner
 {
@@ -445,7 +722,34 @@ struct Params
          max_scan_age = 0.25, max_future = 0.05, state_timeout = 0.2, blind_fraction = 0.5, clear_time = 1.0,
          release_accel = 0.5, stop_speed = 0.1, stop_brake = 1.0, slope_unknown = 0.15, slope_tau = 4.0,
          slope_smoothing = 1.0, imu_timeout = 0.5, zone_sigmas = 2.0, max_position_sd = 1.0, pose_timeout = 0.3;
+  double track_horizon = 2.0, track_cluster_gap = 0.3, track_max_extent = 1.25, track_max_range = 15.0,
+         track_gate = 0.3, track_max_speed = 5.0, track_min_speed = 0.5, track_window = 0.8, track_min_obs = 3,
+         track_min_span = 0.15, track_max_residual = 0.08, track_min_travel = 0.3, track_min_points = 3, track_shape_change = 0.25, track_coast = 0.5,
+         track_step = 0.1, track_max_points = 8, track_clearance = 0.2;
   std::vector<Point> zone;
+  TrackParams tracks() const
+  {
+    TrackParams t;
+    t.horizon = track_horizon;
+    t.cluster_gap = track_cluster_gap;
+    t.max_extent = track_max_extent;
+    t.max_range = track_max_range;
+    t.gate = track_gate;
+    t.max_speed = track_max_speed;
+    t.min_speed = track_min_speed;
+    t.window = track_window;
+    t.min_obs = static_cast<int>(track_min_obs);
+    t.min_span = track_min_span;
+    t.max_residual = track_max_residual;
+    t.min_travel = track_min_travel;
+    t.min_points = static_cast<int>(track_min_points);
+    t.shape_change = track_shape_change;
+    t.coast = track_coast;
+    t.step = track_step;
+    t.max_points = static_cast<int>(track_max_points);
+    t.clearance = track_clearance;
+    return t;
+  }
 };
 
 struct Vehicle
@@ -479,7 +783,8 @@ public:
   // ``terrain``: the DEM in the map frame if known (the braking slope), or null; it must outlive the guard
   Guard(const Params& p, const Vehicle& v, const Heightfield* terrain = nullptr)
     : p_(p), v_(v), fp_(v.body.grown(p.padding)), scans_(p.scanners.size()),
-      terrain_(terrain != nullptr && !terrain->empty() ? terrain : nullptr)
+      terrain_(terrain != nullptr && !terrain->empty() ? terrain : nullptr),
+      trackers_(p.scanners.size(), MotionTracker(p.tracks()))
   {
   }
 
@@ -495,6 +800,27 @@ public:
   // ------------------------------------------------------------ inputs
   void onState(double stamp, double speed, double handlebar)
   {
+    if (!has_ego_ || !has_state_)
+    {
+      has_ego_ = true;
+      ego_t_ = stamp;
+      ego_ = { 0.0, 0.0, 0.0 };
+    }
+    else
+    {
+      const double dt = stamp - ego_t_;
+      if (0.0 < dt && dt <= 1.0)
+      {
+        ego_ = advance(ego_, state_v_, state_h_, dt);
+        ego_t_ = stamp;
+      }
+      else if (dt > 1.0)
+      {
+        ego_t_ = stamp;
+        for (auto& tr : trackers_)
+          tr.reset();
+      }
+    }
     has_state_ = true;
     state_t_ = stamp;
     state_v_ = speed;
@@ -529,7 +855,28 @@ public:
       if (!v_.body.contains(q.x, q.y))
         sc.points.push_back(q);
     sc.invalid_fraction = static_cast<double>(points->n_invalid) / std::max(points->n_rays, 1);
+    std::array<double, 3> e;
+    if (egoAt(stamp, e))
+      trackers_[i].update(stamp, sc.points, e[0], e[1], e[2]);
   }
+
+  // The bicycle model (fields.sweep's) over dt [s] (guard.Guard._advance)
+  std::array<double, 3> advance(const std::array<double, 3>& pose, double speed, double handlebar, double dt) const
+  {
+    const double w = speed * std::tan(v_.ratio * handlebar) / v_.wheelbase;
+    const double mid = pose[2] + 0.5 * w * dt;
+    return { pose[0] + speed * std::cos(mid) * dt, pose[1] + speed * std::sin(mid) * dt, pose[2] + w * dt };
+  }
+  // The odometric pose at ``stamp`` (guard.Guard.ego_at)
+  bool egoAt(double stamp, std::array<double, 3>& out) const
+  {
+    if (!has_ego_ || !has_state_)
+      return false;
+    const double dt = std::min(std::max(stamp - ego_t_, -0.5), 0.5);
+    out = advance(ego_, state_v_, state_h_, dt);
+    return true;
+  }
+  const MotionTracker& tracker(size_t i) const { return trackers_[i]; }
 
   bool pitch(double now, double& out) const
   {
@@ -621,6 +968,10 @@ public:
                                   std::max(d_warn, d_prot) + p.step, stamps);
     const double d_free = free.distance - v * age;
     const std::string who = free.index >= 0 ? owners_[static_cast<size_t>(free.index)] : "";
+    const double moving = free.index >= 0 ? speeds_[static_cast<size_t>(free.index)] : 0.0;
+    const std::string what =
+        moving == 0.0 ? std::string("obstacle") :
+                        format("moving obstacle (%.1f m/s, where it may be within %.1f s)", moving, p.track_horizon);
     double limit = allowedSpeed(d_free - p.warning_margin, t_warn, a_slow);
     if (d_free >= p.creep_margin)
       limit = std::max(limit, p.creep_speed);
@@ -642,7 +993,7 @@ public:
     {
       d.action = STOP;
       d.field = "protective";
-      d.reason = format("obstacle %.2f m along the path, inside the protective field (%.2f m at %.2f m/s)",
+      d.reason = format("%s %.2f m along the path, inside the protective field (%.2f m at %.2f m/s)", what.c_str(),
                         std::max(d_free, 0.0), d_prot, v);
       d.limit = 0.0;
       return enter(d);
@@ -670,7 +1021,7 @@ public:
     if (d.limit < v_req)
     {
       d.field = "warning";
-      d.reason = format("obstacle %.2f m along the path in the warning field: speed limited to %.2f m/s",
+      d.reason = format("%s %.2f m along the path in the warning field: speed limited to %.2f m/s", what.c_str(),
                         std::max(d_free, 0.0), d.limit);
     }
     return cycle(d, now, req_speed);
@@ -754,6 +1105,7 @@ private:
   {
     points_.clear();
     owners_.clear();
+    speeds_.clear();
     for (size_t i = 0; i < p_.scanners.size(); ++i)
     {
       const ScanState& sc = scans_[i];
@@ -762,6 +1114,14 @@ private:
       points_.insert(points_.end(), sc.points.begin(), sc.points.end());
       stamps.push_back(sc.stamp);
       owners_.insert(owners_.end(), sc.points.size(), p_.scanners[i].topic);
+      speeds_.insert(speeds_.end(), sc.points.size(), 0.0);
+      const Prediction& pr = trackers_[i].prediction;
+      if (!pr.xy.empty() && trackers_[i].last_stamp == sc.stamp)
+      {
+        points_.insert(points_.end(), pr.xy.begin(), pr.xy.end());
+        owners_.insert(owners_.end(), pr.xy.size(), p_.scanners[i].topic);
+        speeds_.insert(speeds_.end(), pr.speed.begin(), pr.speed.end());
+      }
     }
   }
 
@@ -918,6 +1278,11 @@ private:
   std::string stop_field_, stop_reason_;
   std::vector<Point> points_;
   std::vector<std::string> owners_;
+  std::vector<double> speeds_;
+  std::vector<MotionTracker> trackers_;
+  bool has_ego_ = false;
+  double ego_t_ = 0.0;
+  std::array<double, 3> ego_ = { 0.0, 0.0, 0.0 };
   std::vector<Pose2> poses_;
   bool cache_valid_ = false;
   std::vector<double> cache_stamps_;
@@ -971,6 +1336,24 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "zone_sigmas", &c.params.zone_sigmas },
     { "max_position_sd", &c.params.max_position_sd },
     { "pose_timeout", &c.params.pose_timeout },
+    { "track_horizon", &c.params.track_horizon },
+    { "track_cluster_gap", &c.params.track_cluster_gap },
+    { "track_max_extent", &c.params.track_max_extent },
+    { "track_max_range", &c.params.track_max_range },
+    { "track_gate", &c.params.track_gate },
+    { "track_max_speed", &c.params.track_max_speed },
+    { "track_min_speed", &c.params.track_min_speed },
+    { "track_window", &c.params.track_window },
+    { "track_min_obs", &c.params.track_min_obs },
+    { "track_min_span", &c.params.track_min_span },
+    { "track_max_residual", &c.params.track_max_residual },
+    { "track_min_travel", &c.params.track_min_travel },
+    { "track_min_points", &c.params.track_min_points },
+    { "track_shape_change", &c.params.track_shape_change },
+    { "track_coast", &c.params.track_coast },
+    { "track_step", &c.params.track_step },
+    { "track_max_points", &c.params.track_max_points },
+    { "track_clearance", &c.params.track_clearance },
   };
   std::map<std::string, bool> seen;
   char line[4096];

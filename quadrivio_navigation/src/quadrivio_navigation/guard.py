@@ -45,7 +45,7 @@ and the setpoint to send.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Dict, Optional, Sequence, Tuple
 
 import numpy as np
@@ -54,6 +54,7 @@ from quadrivio_config import ConfigError, load_yaml, param
 from quadrivio_description.vehicle import VehicleParams
 
 from .costmap import Footprint
+from .tracks import MotionTracker, TrackParams
 from .fields import (ScanPoints, allowed_speed, effective_decel, free_distance, inside, stopping_distance, sweep)
 
 CLEAR, SLOW, STOP, HOLD, FAULT = 0, 1, 2, 3, 4
@@ -122,8 +123,48 @@ class GuardParams:
                                    doc="with a zone: stop when the pose's horizontal sd exceeds this")
     pose_timeout: float = param(0.3, lo=0.01, hi=10.0, unit="s",
                                 doc="with a zone: the pose silent this long stops; older, the DEM gives no braking slope")
+    track_horizon: float = param(2.0, lo=0.0, hi=10.0, unit="s",
+                                 doc="a moving obstacle is guarded where it will be over this time (tracks.py); 0: "
+                                     "every return is taken as standing still")
+    track_cluster_gap: float = param(0.3, lo=0.01, hi=5.0, unit="m",
+                                     doc="neighbouring returns further apart than this belong to different things")
+    track_max_extent: float = param(1.25, lo=0.05, hi=20.0, unit="m",
+                                    doc="a cluster reaching further than this from its centroid (a wall, a row, the "
+                                        "ground) is not tracked")
+    track_max_range: float = param(15.0, lo=0.5, hi=200.0, unit="m", doc="clusters further away are not tracked")
+    track_gate: float = param(0.3, lo=0.01, hi=5.0, unit="m",
+                              doc="a cluster matches a track within this of its predicted position (plus "
+                                  "track_max_speed times the time since it was seen)")
+    track_max_speed: float = param(5.0, lo=0.1, hi=50.0, unit="m/s", doc="faster tracks are not believed")
+    track_min_speed: float = param(0.5, lo=0.0, hi=50.0, unit="m/s", doc="slower tracks are taken as standing")
+    track_window: float = param(0.8, lo=0.05, hi=10.0, unit="s", doc="the velocity is fitted over this long")
+    track_min_obs: int = param(3, lo=2, hi=100, doc="centroids needed for a velocity")
+    track_min_span: float = param(0.15, lo=0.0, hi=10.0, unit="s", doc="...spanning at least this long")
+    track_max_residual: float = param(0.08, lo=0.001, hi=5.0, unit="m",
+                                      doc="a centroid further than this from the fitted line: no velocity (a jump is "
+                                          "not a motion)")
+    track_min_travel: float = param(0.3, lo=0.0, hi=10.0, unit="m",
+                                    doc="a track moves when its line travels this far over the window, beyond the "
+                                        "cluster's own radius (a centroid wanders across a thing's visible face)")
+    track_min_points: int = param(3, lo=1, hi=1000, doc="smaller clusters are not tracked")
+    track_shape_change: float = param(0.25, lo=0.01, hi=20.0, unit="m",
+                                      doc="a cluster whose size changes more than this restarts its track's history")
+    track_coast: float = param(0.5, lo=0.0, hi=10.0, unit="s", doc="an unseen track is kept this long")
+    track_step: float = param(0.1, lo=0.01, hi=5.0, unit="m", doc="spacing of a moving obstacle's predicted copies")
+    track_max_points: int = param(8, lo=1, hi=1000, doc="a moving cluster's points copied along its motion")
+    track_clearance: float = param(0.2, lo=0.0, hi=5.0, unit="m",
+                                   doc="a thing that has moved (and where it will be) is kept this much further away "
+                                       "than a standing one")
+
+    def tracks(self) -> TrackParams:
+        """The moving obstacles' parameters (the ``track_*`` keys without their prefix)."""
+        return TrackParams(**{f.name: getattr(self, "track_" + f.name) for f in fields(TrackParams)
+                              if f.name != "max_tracks"})
 
     def __post_init__(self) -> None:
+        if self.track_min_speed > self.track_max_speed:
+            raise ValueError(f"'track_min_speed' = {self.track_min_speed} must not exceed 'track_max_speed' = "
+                             f"{self.track_max_speed}")
         if self.warning_margin < self.margin:
             raise ValueError(f"'warning_margin' = {self.warning_margin} must not be below 'margin' = {self.margin}")
         if not self.margin <= self.creep_margin <= self.warning_margin:
@@ -229,6 +270,9 @@ class Guard:
         self.body = Footprint.from_vehicle(vehicle, 0.0)
         self.zone = np.asarray(p.zone, dtype=float) if p.zone else None
         self.scans: Dict[str, _Scan] = {s.topic: _Scan() for s in p.scanners}
+        self.trackers: Dict[str, MotionTracker] = {s.topic: MotionTracker(p.tracks()) for s in p.scanners}
+        self.ego: Optional[Tuple[float, float, float, float]] = None  # (t, x, y, yaw): odometric, from the states
+        self._speeds = np.zeros(0)  # of the points of the last _points: 0 standing, else the track's speed
         self.state: Optional[Tuple[float, float, float]] = None  # (stamp, speed, handlebar)
         self.pose: Optional[Tuple[float, float, float, float, float]] = None  # (stamp, x, y, yaw, sd)
         self.slope_est: Optional[Tuple[float, float]] = None  # (t, pitch low-passed over slope_smoothing)
@@ -244,8 +288,33 @@ class Guard:
 
     # ---------------------------------------------------------------- inputs
     def on_state(self, stamp: float, speed: float, handlebar: float) -> None:
-        """The measured rear wheel speed [m/s, signed] and handlebar [rad]."""
+        """The measured rear wheel speed [m/s, signed] and handlebar [rad]; the odometric pose
+        (the moving obstacles' frame) is integrated with the previous state's."""
+        if self.ego is None or self.state is None:
+            self.ego = (stamp, 0.0, 0.0, 0.0)
+        else:
+            dt = stamp - self.ego[0]
+            if 0.0 < dt <= 1.0:
+                self.ego = (stamp,) + self._advance(self.ego[1:], self.state[1], self.state[2], dt)
+            elif dt > 1.0:  # silent for long: the motion in between is unknown, the tracks too
+                self.ego = (stamp,) + self.ego[1:]
+                for tr in self.trackers.values():
+                    tr.reset()
         self.state = (stamp, speed, handlebar)
+
+    def _advance(self, pose, speed: float, handlebar: float, dt: float) -> Tuple[float, float, float]:
+        """The bicycle model (fields.sweep's) over ``dt`` [s] (negative: back)."""
+        x, y, yaw = pose
+        w = speed * math.tan(self.v.steering.ratio * handlebar) / self.v.wheelbase
+        mid = yaw + 0.5 * w * dt
+        return x + speed * math.cos(mid) * dt, y + speed * math.sin(mid) * dt, yaw + w * dt
+
+    def ego_at(self, stamp: float) -> Optional[Tuple[float, float, float]]:
+        """The odometric pose at ``stamp``, from the last state's (at most 0.5 s away)."""
+        if self.ego is None or self.state is None:
+            return None
+        dt = min(max(stamp - self.ego[0], -0.5), 0.5)
+        return self._advance(self.ego[1:], self.state[1], self.state[2], dt)
 
     def on_pitch(self, stamp: float, pitch: float) -> None:
         """The vehicle's pitch [rad] (REP-103: positive nose down), from
@@ -275,6 +344,9 @@ class Guard:
         if len(xy):
             xy = xy[~inside(self.body, xy)]
         sc.points = xy
+        ego = self.ego_at(stamp)
+        if ego is not None:
+            self.trackers[topic].update(stamp, xy, ego)
         sc.invalid_fraction = points.n_invalid / max(points.n_rays, 1)
 
     # ---------------------------------------------------------------- decide
@@ -342,6 +414,9 @@ class Guard:
                                  points, stamps)
         d_free = free.distance - v * age  # the vehicle drove on since the scan
         who = owners[free.index] if free.index >= 0 else ""
+        moving = float(self._speeds[free.index]) if free.index >= 0 else 0.0
+        what = "obstacle" if moving == 0.0 else (f"moving obstacle ({moving:.1f} m/s, where it may be within "
+                                                 f"{p.track_horizon:.1f} s)")
         limit = allowed_speed(d_free - p.warning_margin, t_warn, a_slow)
         if d_free >= p.creep_margin:
             limit = max(limit, p.creep_speed)
@@ -351,7 +426,7 @@ class Guard:
                      slope=slope)
         if v >= p.stop_speed and d_free < d_prot:
             d.action, d.field = STOP, "protective"
-            d.reason = (f"obstacle {max(d_free, 0.0):.2f} m along the path, inside the protective field "
+            d.reason = (f"{what} {max(d_free, 0.0):.2f} m along the path, inside the protective field "
                         f"({d_prot:.2f} m at {v:.2f} m/s)")
             d.limit = 0.0
             return self._enter(d, now)
@@ -369,7 +444,7 @@ class Guard:
                 return d
         if d.limit < v_req:
             d.field = "warning"
-            d.reason = (f"obstacle {max(d_free, 0.0):.2f} m along the path in the warning field: speed limited to "
+            d.reason = (f"{what} {max(d_free, 0.0):.2f} m along the path in the warning field: speed limited to "
                         f"{d.limit:.2f} m/s")
         return self._cycle(d, now, req_speed)
 
@@ -437,7 +512,7 @@ class Guard:
     def _points(self, now: float):
         """Every fresh scanner's points (each guards whatever it sees, whichever direction it
         covers), their scans' stamps, and for each point its scanner."""
-        chunks, stamps, owners = [], [], []
+        chunks, stamps, owners, speeds = [], [], [], []
         for s in self.p.scanners:
             sc = self.scans[s.topic]
             if sc.error or now - sc.stamp > self.p.scan_timeout:
@@ -445,7 +520,14 @@ class Guard:
             chunks.append(sc.points)
             stamps.append(sc.stamp)
             owners += [s.topic] * len(sc.points)
+            speeds.append(np.zeros(len(sc.points)))
+            pr = self.trackers[s.topic].prediction
+            if len(pr.xy) and self.trackers[s.topic].last_stamp == sc.stamp:
+                chunks.append(pr.xy)
+                owners += [s.topic] * len(pr.xy)
+                speeds.append(pr.speed)
         pts = np.concatenate(chunks) if chunks else np.zeros((0, 2))
+        self._speeds = np.concatenate(speeds) if speeds else np.zeros(0)
         return pts, stamps, owners
 
     def _zone_check(self, now: float, poses: np.ndarray, d_prot: float) -> str:

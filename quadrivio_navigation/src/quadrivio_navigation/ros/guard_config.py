@@ -41,8 +41,8 @@ def emit(out: BinaryIO, p, node, vehicle, hf) -> None:
     lines = []
     for f in dataclasses.fields(p):
         value = getattr(p, f.name)
-        if isinstance(value, float) and not isinstance(value, bool):
-            lines.append(f"param {f.name} {value!r}")
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            lines.append(f"param {f.name} {float(value)!r}")
     for s in p.scanners:
         for text in (s.topic, s.frame, s.covers):
             if not text or any(c.isspace() for c in text):

@@ -288,6 +288,8 @@ class GuardNode:
         stat.add("protective stops", str(core.protective_stops))
         stat.add("fail-safe stops", str(core.fault_stops))
         stat.add("zone stops", str(core.zone_stops))
+        stat.add("moving obstacles", ", ".join(
+            f"{topic}: {tr.prediction.moving} moving of {len(tr.tracks)} tracked" for topic, tr in core.trackers.items()))
         stat.add("ground returns (DEM)", str(self.ground_returns) if self.heights is not None else "no DEM")
         stat.add("inputs rejected", self.inputs.summary())
         return stat

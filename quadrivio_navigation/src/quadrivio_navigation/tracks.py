@@ -1,0 +1,249 @@
+"""Moving obstacles in the lasers: clusters tracked from scan to scan, and where they will be.
+
+A guard that treats every laser return as standing still stops for a person only once the
+person is in the vehicle's path: a person stepping out between two trees 2 m ahead of a
+vehicle at 3 m/s is inside its stopping distance before any field holds them. Safety laser
+scanners do not predict; nav2's collision monitor's "approach" action predicts only the
+robot. This module predicts the obstacles too, with nothing but the scans and the vehicle's
+own motion (no map, no localization: the guard must not depend on the estimate):
+
+* **ego-motion**: the vehicle's pose in a local odometric frame, integrated from the
+  measured speed and handlebar (the sweep's bicycle model, :mod:`quadrivio_navigation.fields`);
+* **clusters**: a scan's points in ray order, split where two neighbours are more than
+  ``cluster_gap`` apart; a cluster wider than ``max_extent`` (a wall, a tree row seen along,
+  the ground) or further than ``max_range`` is not tracked: its centroid moves with the
+  viewpoint, not with the thing;
+* **tracks**: each cluster's centroid in the odometric frame, matched to the track whose
+  position predicted to the scan's time is nearest (greedy, nearest pair first, within
+  ``gate`` plus ``max_speed`` times the time since the track was seen); a cluster whose
+  size changes by more than ``shape_change`` (occlusion, two things merging) restarts its
+  track's history;
+* **velocity**: the least-squares line through the track's centroids over the last
+  ``window`` seconds (at least ``min_obs`` of them over ``min_span``); it counts only when
+  every centroid lies within ``max_residual`` of the line (a centroid that jumps is not a
+  motion), the speed lies between ``min_speed`` and ``max_speed``, and the line travels
+  further than ``min_travel`` plus the cluster's own radius: the centroid of a thing seen
+  from a moving vehicle, or partly hidden behind its neighbour (a tree behind a tree along
+  a row), wanders across its visible face, by up to its size, without the thing moving.
+  Clusters of fewer than ``min_points`` returns are not tracked;
+* **prediction**: a moving track's points (at most ``max_points`` of them) copied along its
+  velocity every ``step`` metres over the next ``horizon`` seconds, in the scan's base_link:
+  the guard treats them as returns, so the whole stretch the obstacle will cross is
+  something the vehicle must be able to stop short of (conservative: it does not ask when
+  the vehicle would get there);
+* **clearance**: a thing that has moved while tracked (a dog that ran into the lane and
+  stands there, a person who stopped) may move again: its points and their copies are
+  guarded ``clearance`` further away than a tree's, as four copies offset by it along
+  base_link's axes (the directions the footprint's sides face when driving straight).
+
+Pure Python with sequential sums (no numpy reductions on the values that decide): the
+roscpp guard (``include/quadrivio_navigation/guard_core.h``) does the same arithmetic in
+the same order and is cross-tested against this module (``test/test_guard_native.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import List, Optional, Tuple
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TrackParams:
+    horizon: float = 2.0  # [s] how far ahead a moving obstacle is predicted; 0: none
+    cluster_gap: float = 0.3  # [m]
+    max_extent: float = 1.25  # [m] a cluster's largest distance from its centroid
+    max_range: float = 15.0  # [m]
+    gate: float = 0.3  # [m]
+    max_speed: float = 5.0  # [m/s]
+    min_speed: float = 0.5  # [m/s]
+    window: float = 0.8  # [s]
+    min_obs: int = 3
+    min_span: float = 0.15  # [s]
+    max_residual: float = 0.08  # [m]
+    min_travel: float = 0.3  # [m] beyond the cluster's own size, over the window
+    min_points: int = 3
+    shape_change: float = 0.25  # [m]
+    coast: float = 0.5  # [s]
+    step: float = 0.1  # [m]
+    max_points: int = 8
+    clearance: float = 0.2  # [m] kept from a thing that has moved, beyond the guard's padding
+    max_tracks: int = 200
+
+
+@dataclass
+class Track:
+    ident: int
+    hist: List[Tuple[float, float, float]]  # (t, x, y) of the centroid, odometric frame
+    radius: float  # [m] the cluster's largest distance from its centroid
+    last_t: float
+    vx: float = 0.0
+    vy: float = 0.0
+    moving: bool = False
+    moved: bool = False  # moving at some scan of its life
+
+
+@dataclass
+class Prediction:
+    """Where the moving obstacles of one scan will be, in that scan's base_link."""
+    xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    speed: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [m/s] of the track each point is from
+    moving: int = 0  # tracks predicted
+
+
+def clusters(xy: np.ndarray, gap: float) -> List[Tuple[int, int]]:
+    """[start, end) index ranges of the points (in ray order) split where neighbours are more
+    than ``gap`` apart."""
+    n = len(xy)
+    if n == 0:
+        return []
+    d = np.diff(xy, axis=0)
+    breaks = np.flatnonzero(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] > gap * gap) + 1
+    edges = [0] + [int(b) for b in breaks] + [n]
+    return [(edges[i], edges[i + 1]) for i in range(len(edges) - 1)]
+
+
+def _centroid(xy: np.ndarray, a: int, b: int) -> Tuple[float, float, float]:
+    """Mean and largest distance from it of points a..b-1 (sequential sums)."""
+    sx = sy = 0.0
+    for i in range(a, b):
+        sx += float(xy[i, 0])
+        sy += float(xy[i, 1])
+    n = b - a
+    cx, cy = sx / n, sy / n
+    r = 0.0
+    for i in range(a, b):
+        dx, dy = float(xy[i, 0]) - cx, float(xy[i, 1]) - cy
+        r = max(r, math.sqrt(dx * dx + dy * dy))
+    return cx, cy, r
+
+
+def _fit(hist, p: TrackParams) -> Optional[Tuple[float, float]]:
+    """The velocity of the least-squares line through the centroids, or None."""
+    n = len(hist)
+    if n < p.min_obs or hist[-1][0] - hist[0][0] < p.min_span:
+        return None
+    st = sx = sy = 0.0
+    for t, x, y in hist:
+        st += t
+        sx += x
+        sy += y
+    mt, mx, my = st / n, sx / n, sy / n
+    stt = stx = sty = 0.0
+    for t, x, y in hist:
+        dt = t - mt
+        stt += dt * dt
+        stx += dt * (x - mx)
+        sty += dt * (y - my)
+    if stt <= 0.0:
+        return None
+    vx, vy = stx / stt, sty / stt
+    for t, x, y in hist:
+        ex, ey = x - (mx + vx * (t - mt)), y - (my + vy * (t - mt))
+        if ex * ex + ey * ey > p.max_residual * p.max_residual:
+            return None
+    return vx, vy
+
+
+class MotionTracker:
+    """One scanner's tracks; :meth:`update` with each scan, its prediction in ``self.prediction``."""
+
+    def __init__(self, p: TrackParams) -> None:
+        self.p = p
+        self.tracks: List[Track] = []
+        self.next_id = 0
+        self.last_stamp = -math.inf
+        self.prediction = Prediction()
+
+    def reset(self) -> None:
+        self.tracks = []
+        self.last_stamp = -math.inf
+        self.prediction = Prediction()
+
+    def update(self, stamp: float, xy: np.ndarray, ego: Tuple[float, float, float]) -> Prediction:
+        """A scan's points (base_link, ray order) at ``stamp`` with the vehicle's odometric pose
+        ``ego`` (x, y, yaw) then. A scan not newer than the last is ignored."""
+        p = self.p
+        if p.horizon <= 0.0 or not stamp > self.last_stamp:
+            return self.prediction
+        self.last_stamp = stamp
+        ex, ey, eyaw = ego
+        c, s = math.cos(eyaw), math.sin(eyaw)
+        found = []  # (x, y in odom, radius, a, b)
+        for a, b in clusters(xy, p.cluster_gap):
+            bx, by, r = _centroid(xy, a, b)
+            if b - a < p.min_points or r > p.max_extent or bx * bx + by * by > p.max_range * p.max_range:
+                continue
+            found.append((ex + c * bx - s * by, ey + s * bx + c * by, r, a, b))
+        live = [k for k in self.tracks if stamp - k.last_t <= p.coast]
+        pairs = []
+        for ti, k in enumerate(live):
+            dt = stamp - k.last_t
+            px, py = k.hist[-1][1] + k.vx * dt, k.hist[-1][2] + k.vy * dt
+            gate = p.gate + p.max_speed * dt
+            for ci, f in enumerate(found):
+                dx, dy = f[0] - px, f[1] - py
+                d = math.sqrt(dx * dx + dy * dy)
+                if d <= gate:
+                    pairs.append((d, ti, ci))
+        pairs.sort()
+        used_t, used_c = set(), set()
+        matched = {}
+        for d, ti, ci in pairs:
+            if ti in used_t or ci in used_c:
+                continue
+            used_t.add(ti)
+            used_c.add(ci)
+            matched[ci] = live[ti]
+        tracks = [k for ti, k in enumerate(live) if ti not in used_t]
+        out_xy, out_v, moving = [], [], 0
+        for ci, f in enumerate(found):
+            fx, fy, r, a, b = f
+            k = matched.get(ci)
+            if k is None:
+                k = Track(self.next_id, [], r, stamp)
+                self.next_id += 1
+            if abs(r - k.radius) > p.shape_change:
+                k.hist = []
+            k.hist = [h for h in k.hist if h[0] >= stamp - p.window] + [(stamp, fx, fy)]
+            k.radius, k.last_t = r, stamp
+            v = _fit(k.hist, p)
+            speed = 0.0 if v is None else math.sqrt(v[0] * v[0] + v[1] * v[1])
+            k.moving = (v is not None and p.min_speed <= speed <= p.max_speed and
+                        speed * (k.hist[-1][0] - k.hist[0][0]) >= p.min_travel + r)
+            k.vx, k.vy = v if v is not None else (0.0, 0.0)
+            k.moved = k.moved or k.moving
+            tracks.append(k)
+            if k.moving:
+                moving += 1
+                self._predict(xy, a, b, c * k.vx + s * k.vy, -s * k.vx + c * k.vy, speed, out_xy, out_v)
+            elif k.moved:
+                self._predict(xy, a, b, 0.0, 0.0, 0.0, out_xy, out_v)
+        tracks.sort(key=lambda k: k.ident)
+        self.tracks = tracks[-p.max_tracks:]
+        self.prediction = Prediction(np.array(out_xy, dtype=float).reshape(-1, 2), np.array(out_v, dtype=float),
+                                     moving)
+        return self.prediction
+
+    def _predict(self, xy, a, b, ux, uy, speed, out_xy, out_v) -> None:
+        """The cluster's points a..b-1 (at most max_points, evenly picked) moved by (ux, uy)
+        [m/s, base_link] for 1..J steps over the horizon (standing: J = 0, the points as they
+        are), each with its four copies ``clearance`` away."""
+        p = self.p
+        n = b - a
+        k = min(n, p.max_points)
+        idx = [a + (i * (n - 1)) // (k - 1) for i in range(k)] if k > 1 else [a]
+        steps = max(1, int(math.ceil(speed * p.horizon / p.step))) if speed > 0.0 else 0
+        cl = p.clearance
+        for j in range(steps + 1):  # j = 0: where it is now (the scan holds the point itself)
+            tau = p.horizon * j / steps if steps else 0.0
+            for i in idx:
+                x, y = float(xy[i, 0]) + ux * tau, float(xy[i, 1]) + uy * tau
+                if j > 0:
+                    out_xy.append((x, y))
+                    out_v.append(speed)
+                if cl > 0.0:
+                    out_xy += [(x + cl, y), (x - cl, y), (x, y + cl), (x, y - cl)]
+                    out_v += [speed] * 4

@@ -1,0 +1,160 @@
+"""Moving obstacles tracked in the scans (tracks.py), and the guard acting on where they will be."""
+import math
+
+import numpy as np
+import pytest
+
+from quadrivio_config import from_mapping
+from quadrivio_description.vehicle import load_vehicle
+from quadrivio_navigation.fields import ScanPoints
+from quadrivio_navigation.guard import STOP, Guard, GuardParams
+from quadrivio_navigation.tracks import MotionTracker, TrackParams, clusters
+
+
+def raycast(pose, circles, mount=(1.2, 0.0), fov=math.radians(270.0), n=541, max_range=30.0, rng=None, noise=0.0):
+    """A planar laser at ``mount`` (base_link) of a vehicle at ``pose`` (x, y, yaw, world)
+    seeing circles (x, y, r, world): the returns' points in base_link, in ray order."""
+    x, y, yaw = pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    ox, oy = x + c * mount[0] - s * mount[1], y + s * mount[0] + c * mount[1]
+    out = []
+    for a in np.linspace(-fov / 2, fov / 2, n):
+        dx, dy = math.cos(yaw + a), math.sin(yaw + a)
+        best = max_range
+        for cx, cy, r in circles:
+            fx, fy = ox - cx, oy - cy
+            b = fx * dx + fy * dy
+            disc = b * b - (fx * fx + fy * fy - r * r)
+            if disc >= 0.0:
+                t = -b - math.sqrt(disc)
+                if 0.0 < t < best:
+                    best = t
+        if best < max_range:
+            if rng is not None:
+                best += rng.normal(0.0, noise)
+            out.append((mount[0] + best * math.cos(a), mount[1] + best * math.sin(a)))
+    return np.array(out, dtype=float).reshape(-1, 2)
+
+
+def test_clusters_split_where_neighbours_are_apart():
+    xy = np.array([[0, 0], [0.1, 0], [0.2, 0], [1.0, 0], [1.1, 0], [5, 5]], dtype=float)
+    assert clusters(xy, 0.3) == [(0, 3), (3, 5), (5, 6)]
+    assert clusters(np.zeros((0, 2)), 0.3) == []
+
+
+def test_a_person_crossing_ahead_is_tracked_at_their_speed_and_predicted_across_the_path():
+    tr = MotionTracker(TrackParams())
+    found = None
+    for k in range(12):
+        t = 0.1 * k
+        pose = (3.0 * t, 0.0, 0.0)  # the vehicle at 3 m/s along x
+        person = (10.0, -3.0 + 1.4 * t, 0.3)  # crossing its path at 1.4 m/s
+        pr = tr.update(t, raycast(pose, [person]), pose)
+        if pr.moving and found is None:
+            found = t
+    # moving once its centroid has travelled min_travel (0.3 m) plus its radius: 0.4 s at 1.4 m/s
+    assert found is not None and found <= 0.45, found
+    (k,) = [k for k in tr.tracks if k.moving]
+    assert k.vx == pytest.approx(0.0, abs=0.15)
+    assert k.vy == pytest.approx(1.4, abs=0.15)
+    # in base_link: the copies reach across y = 0 (the path) ahead of the vehicle
+    pr = tr.prediction
+    assert pr.moving == 1 and np.all(pr.speed == pytest.approx(1.4, abs=0.15))
+    near_path = pr.xy[np.abs(pr.xy[:, 1]) < 0.5]
+    assert len(near_path) and np.all(near_path[:, 0] > 4.0)
+    assert pr.xy[:, 1].max() == pytest.approx(-3.0 + 1.4 * 1.1 + 2.0 * 1.4, abs=0.6)
+
+
+def test_standing_trees_seen_from_a_turning_noisy_vehicle_never_move():
+    rng = np.random.default_rng(3)
+    trees = [(x, y, 0.15) for x in np.arange(2.0, 40.0, 1.5) for y in (-2.5, 2.5)]
+    tr = MotionTracker(TrackParams())
+    x = y = yaw = 0.0
+    moving = 0
+    for k in range(100):
+        t = 0.1 * k
+        w = 0.15 * math.sin(0.5 * t)  # weaving, 3 m/s
+        x, y, yaw = x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw), yaw + 0.1 * w
+        pr = tr.update(t, raycast((x, y, yaw), trees, rng=rng, noise=0.02), (x, y, yaw))
+        moving += pr.moving
+    assert moving == 0
+    assert len(tr.tracks) > 5
+
+
+def test_a_wall_is_not_tracked_and_a_jumping_centroid_is_no_motion():
+    p = TrackParams()
+    tr = MotionTracker(p)
+    wall = np.column_stack([np.full(60, 5.0), np.linspace(-3, 3, 60)])
+    for k in range(10):  # the vehicle drives at 3 m/s along a wall that seems to move with it
+        tr.update(0.1 * k, wall, (0.3 * k, 0.0, 0.0))
+    assert tr.tracks == [] and tr.prediction.moving == 0
+    # a post half hidden now and then: its centroid jumps 0.2 m back and forth
+    tr = MotionTracker(p)
+    for k in range(10):
+        c = 0.2 * (k % 2)
+        post = np.column_stack([np.full(5, 6.0), c + np.linspace(-0.1, 0.1, 5)])
+        tr.update(0.1 * k, post, (0.0, 0.0, 0.0))
+        assert tr.prediction.moving == 0
+
+
+def test_no_horizon_no_tracking():
+    tr = MotionTracker(TrackParams(horizon=0.0))
+    for k in range(6):
+        tr.update(0.1 * k, raycast((0, 0, 0), [(8.0, -2 + 1.4 * 0.1 * k, 0.3)]), (0.0, 0.0, 0.0))
+    assert tr.tracks == [] and tr.prediction.moving == 0
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle()
+
+
+def _crossing_run(vehicle, horizon):
+    """The vehicle at 3 m/s; a person steps out 1.75 m beside its path 7 m ahead and crosses at
+    1.4 m/s. The guard's first STOP or SLOW below 2 m/s: (time, reason), with the person then."""
+    g = Guard(from_mapping(GuardParams, {"track_horizon": horizon}, "test"), vehicle)
+    x, first = 0.0, None
+    for k in range(0, 150):
+        t = 0.02 * k
+        g.on_state(t, 3.0, 0.0)
+        if k % 5 == 0:
+            person = (8.9, -2.8 + 1.4 * t, 0.3)  # 7 m ahead of the bumper, 1.75 m beside the swept path
+            pts = raycast((x, 0.0, 0.0), [person], mount=(1.7, 0.0))
+            g.on_scan("scan/front", t, ScanPoints(pts, 541, 0, 0))
+            g.on_scan("scan/rear", t, ScanPoints(np.zeros((0, 2)), 541, 0, 0))
+        d = g.decide(t, 3.0, 0.0)
+        if first is None and (d.action == STOP or d.limit < 2.0):
+            first = (t, d.reason, d.action)
+        x += 3.0 * 0.02
+    return first
+
+
+def test_the_guard_slows_for_a_person_about_to_cross_before_they_are_in_the_path(vehicle):
+    with_tracks = _crossing_run(vehicle, 2.0)
+    without = _crossing_run(vehicle, 0.0)
+    assert with_tracks is not None and "moving obstacle (1.4 m/s" in with_tracks[1], with_tracks
+    # the person enters the swept path (half width + padding 0.75 m, their radius 0.3) at about
+    # t = (2.8 - 1.05) / 1.4 = 1.25 s; by then the static guard has not reacted yet
+    assert with_tracks[0] < 0.8
+    assert without is None or without[0] > with_tracks[0] + 0.4, without
+
+
+def test_a_thing_that_moved_and_stopped_is_kept_further_away():
+    p = TrackParams()
+    tr = MotionTracker(p)
+    for k in range(30):  # walks 1.4 m/s for 1 s, then stands in the path
+        t = 0.1 * k
+        y = -2.5 + 1.4 * min(t, 1.0)
+        pr = tr.update(t, raycast((0.0, 0.0, 0.0), [(8.0, y, 0.3)], mount=(1.7, 0.0)), (0.0, 0.0, 0.0))
+    assert pr.moving == 0 and len(pr.xy) > 0 and np.all(pr.speed == 0.0)
+    (k,) = tr.tracks
+    assert k.moved and not k.moving
+    # four copies of each (of at most max_points) points, clearance away along the axes
+    assert len(pr.xy) % 4 == 0 and len(pr.xy) <= 4 * p.max_points
+    pts = raycast((0.0, 0.0, 0.0), [(8.0, -1.1, 0.3)], mount=(1.7, 0.0))
+    assert pr.xy[:, 0].min() == pytest.approx(pts[:, 0].min() - p.clearance, abs=0.05)
+    # a post that never moved gets none
+    tr = MotionTracker(p)
+    for k in range(30):
+        pr = tr.update(0.1 * k, raycast((0.0, 0.0, 0.0), [(8.0, 0.0, 0.3)], mount=(1.7, 0.0)), (0.0, 0.0, 0.0))
+    assert len(pr.xy) == 0
