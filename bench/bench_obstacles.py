@@ -326,12 +326,12 @@ def main() -> None:
     write_result("obstacles", result)
     with open(os.path.join(RESULTS, "obstacles.md"), "w") as fh:
         fh.write("| scenario | runs | completed | collisions | min clearance [m] | protective stops | false | "
-                 "fail-safe | blocked mean [s] |\n|---|---|---|---|---|---|---|---|---|\n")
+                 "anticipated | fail-safe | blocked mean [s] |\n|---|---|---|---|---|---|---|---|---|---|\n")
         for key, row in result["per_scenario"].items():
             mc = row["min_clearance_m"]
             fh.write(f"| {key} | {row['runs']} | {row['completed']:.2f} | {row['collisions']} | "
                      f"{'' if mc is None else f'{mc:.2f}'} | {row['protective_stops']} | {row['false_stops']} | "
-                     f"{row['fault_stops']} | {row['time_blocked_s_mean']:.1f} |\n")
+                     f"{row['anticipated_stops']} | {row['fault_stops']} | {row['time_blocked_s_mean']:.1f} |\n")
 
 
 if __name__ == "__main__":

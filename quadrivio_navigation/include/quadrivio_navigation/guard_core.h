@@ -510,16 +510,17 @@ public:
       size_t a, b;
     };
     std::vector<Found> found;
+    // running sums, each cluster's sum their difference (tracks.centroids)
+    std::vector<double> csx(xy.size() + 1, 0.0), csy(xy.size() + 1, 0.0);
+    for (size_t i = 0; i < xy.size(); ++i)
+    {
+      csx[i + 1] = csx[i] + xy[i].x;
+      csy[i + 1] = csy[i] + xy[i].y;
+    }
     for (const auto& ab : clusters(xy, p.cluster_gap))
     {
-      double sx = 0.0, sy = 0.0;
-      for (size_t i = ab.first; i < ab.second; ++i)
-      {
-        sx += xy[i].x;
-        sy += xy[i].y;
-      }
       const double n = static_cast<double>(ab.second - ab.first);
-      const double bx = sx / n, by = sy / n;
+      const double bx = (csx[ab.second] - csx[ab.first]) / n, by = (csy[ab.second] - csy[ab.first]) / n;
       double r = 0.0;
       for (size_t i = ab.first; i < ab.second; ++i)
       {

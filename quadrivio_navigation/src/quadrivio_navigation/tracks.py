@@ -105,18 +105,20 @@ def clusters(xy: np.ndarray, gap: float) -> List[Tuple[int, int]]:
     return [(edges[i], edges[i + 1]) for i in range(len(edges) - 1)]
 
 
-def _centroid(xy: np.ndarray, a: int, b: int) -> Tuple[float, float, float]:
-    """Mean and largest distance from it of points a..b-1 (sequential sums)."""
-    sx = sy = 0.0
-    for i in range(a, b):
-        sx += float(xy[i, 0])
-        sy += float(xy[i, 1])
-    n = b - a
-    cx, cy = sx / n, sy / n
-    r = 0.0
-    for i in range(a, b):
-        dx, dy = float(xy[i, 0]) - cx, float(xy[i, 1]) - cy
-        r = max(r, math.sqrt(dx * dx + dy * dy))
+def centroids(xy: np.ndarray, ranges: List[Tuple[int, int]]) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each cluster's mean (x, y) and largest distance from it. The sums are differences of
+    the running (sequential) sums over all the points, as the C++ tracker computes them."""
+    starts = np.array([a for a, _ in ranges], dtype=int)
+    ends = np.array([b for _, b in ranges], dtype=int)
+    csx = np.concatenate([[0.0], np.cumsum(xy[:, 0])])
+    csy = np.concatenate([[0.0], np.cumsum(xy[:, 1])])
+    n = (ends - starts).astype(float)
+    cx = (csx[ends] - csx[starts]) / n
+    cy = (csy[ends] - csy[starts]) / n
+    counts = ends - starts
+    dx = xy[:, 0] - np.repeat(cx, counts)
+    dy = xy[:, 1] - np.repeat(cy, counts)
+    r = np.maximum.reduceat(np.sqrt(dx * dx + dy * dy), starts)
     return cx, cy, r
 
 
@@ -172,23 +174,29 @@ class MotionTracker:
         ex, ey, eyaw = ego
         c, s = math.cos(eyaw), math.sin(eyaw)
         found = []  # (x, y in odom, radius, a, b)
-        for a, b in clusters(xy, p.cluster_gap):
-            bx, by, r = _centroid(xy, a, b)
-            if b - a < p.min_points or r > p.max_extent or bx * bx + by * by > p.max_range * p.max_range:
-                continue
-            found.append((ex + c * bx - s * by, ey + s * bx + c * by, r, a, b))
+        ranges = clusters(xy, p.cluster_gap)
+        if ranges:
+            cx, cy, rad = centroids(xy, ranges)
+            keep = np.flatnonzero([b - a >= p.min_points for a, b in ranges] & (rad <= p.max_extent) &
+                                  (cx * cx + cy * cy <= p.max_range * p.max_range))
+            for j in keep:
+                bx, by, r = float(cx[j]), float(cy[j]), float(rad[j])
+                found.append((ex + c * bx - s * by, ey + s * bx + c * by, r) + ranges[j])
         live = [k for k in self.tracks if stamp - k.last_t <= p.coast]
         pairs = []
-        for ti, k in enumerate(live):
-            dt = stamp - k.last_t
-            px, py = k.hist[-1][1] + k.vx * dt, k.hist[-1][2] + k.vy * dt
-            gate = p.gate + p.max_speed * dt
-            for ci, f in enumerate(found):
-                dx, dy = f[0] - px, f[1] - py
-                d = math.sqrt(dx * dx + dy * dy)
-                if d <= gate:
-                    pairs.append((d, ti, ci))
-        pairs.sort()
+        if live and found:
+            # every track against every cluster at once (elementwise: the same arithmetic as the loops in C++)
+            dts = np.array([stamp - k.last_t for k in live])
+            px = np.array([k.hist[-1][1] for k in live]) + np.array([k.vx for k in live]) * dts
+            py = np.array([k.hist[-1][2] for k in live]) + np.array([k.vy for k in live]) * dts
+            gate = p.gate + p.max_speed * dts
+            dx = np.array([f[0] for f in found])[None, :] - px[:, None]
+            dy = np.array([f[1] for f in found])[None, :] - py[:, None]
+            d = np.sqrt(dx * dx + dy * dy)
+            ti, ci = np.nonzero(d <= gate[:, None])
+            dd = d[ti, ci]
+            order = np.lexsort((ci, ti, dd))  # by distance, then track, then cluster
+            pairs = [(float(dd[j]), int(ti[j]), int(ci[j])) for j in order]
         used_t, used_c = set(), set()
         matched = {}
         for d, ti, ci in pairs:
