@@ -319,7 +319,8 @@ private:
     int n = 0;
     auto out = g::demGround(config_.terrain, pos, R, m.ranges, m.angle_min, m.angle_increment, m.range_min,
                             m.range_max, kMaxRange, config_.ground_tolerance, &n, 0.0,
-                            config_.ground_position_sigmas * pose_[4], config_.ground_tolerance_max);
+                            config_.ground_position_sigmas * std::max(pose_[4], config_.ground_position_sd_min),
+                            config_.ground_tolerance_max);
     ground_returns_ += n;
     return out;
   }

@@ -27,7 +27,7 @@ from quadrivio_runtime.workspace import built_executable
 
 class NodeParamsStub:
     base_frame, request_timeout, ground_tolerance = "base_link", 0.25, 0.15
-    ground_position_sigmas, ground_tolerance_max = 2.0, 0.3
+    ground_position_sigmas, ground_tolerance_max, ground_position_sd_min = 2.0, 0.3, 0.5
 
 
 def _replay_binary():
@@ -138,6 +138,8 @@ def _compare(py, cpp):
             assert float(v[7]) == pytest.approx(d.nearest[0], abs=1e-12), where
             assert float(v[8]) == pytest.approx(d.nearest[1], abs=1e-12), where
         assert int(v[10]) == d.direction, where
+        ss = float(v[9])
+        assert (math.isnan(ss) and math.isnan(d.scan_stamp)) or ss == d.scan_stamp, where
         assert (int(v[15]), int(v[16]), int(v[17])) == (ps, fs, zs), where
         assert (field, scanner, reason) == (d.field, d.scanner, d.reason), where
     return actions

@@ -157,3 +157,44 @@ def test_the_ground_tolerance_grows_with_the_poses_uncertainty_on_a_slope_only()
         assert got == expect, (off, slack, cap)
     assert not dem_ground(level, (0.0, 0.0, 0.25), R, 0.15, 0.0, 5.0)(*ray)[0]  # level: no slack
     assert dem_ground(level, (0.0, 0.0, 0.14), R, 0.15, 0.0, 5.0)(*ray)[0]
+
+
+def test_bump_faces_seen_from_an_estimate_off_more_than_its_sd_are_ground_with_the_sd_floor():
+    """Rough ground (bumps 0.1 m high every 2 m on a 6 % slope): the vehicle truly at the origin,
+    its estimate 0.5 m off with a reported sd of 0.1 m. Its laser, pitched down, meets the
+    ground 4-6 m ahead. From the estimate some of those returns look like obstacles; with the
+    guard's sd floor (0.5 m) none does, and a post 0.57 m tall stays an obstacle."""
+    import numpy as np
+
+    from quadrivio_navigation.local_layer import scanner_pose_3d, terrain_ground
+
+    def dem(x, y):
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return 0.06 * x + 0.1 * np.sin(np.pi * x) * np.cos(0.8 * np.pi * y)
+
+    t_b, R_b = (1.6, 0.0, 0.3), np.eye(3)
+    pitch = 0.09  # nose down (REP 103)
+    pos, R = scanner_pose_3d(dem, 0.0, 0.0, 0.0, 0.0, pitch, 0.3, t_b, R_b)
+    bearings = np.linspace(-0.6, 0.6, 121)
+    ranges = np.full(len(bearings), np.nan)
+    for k, b in enumerate(bearings):  # march each true ray to the terrain
+        d = R @ np.array([np.cos(b), np.sin(b), 0.0])
+        s = np.arange(0.5, 12.0, 0.002)
+        p = pos[:, None] + d[:, None] * s
+        below = np.flatnonzero(p[2] <= dem(p[0], p[1]))
+        if len(below):
+            ranges[k] = s[below[0]]
+    hit = np.isfinite(ranges)
+    assert hit.sum() > 100 and np.nanmax(ranges) < 8.0
+    est = (0.5, 0.0, 0.0, 0.1)  # 0.5 m off, sd 0.1
+    args = (dem, est, 0.0, pitch, 0.3, t_b, R_b, 0.15, 0.0, 2.0, 0.3)
+    plain = terrain_ground(*args)(bearings[hit], ranges[hit])
+    floored = terrain_ground(*args, sd_min=0.5)(bearings[hit], ranges[hit])
+    assert not plain.all(), "the test needs returns that the plain sd gets wrong"
+    assert floored.all()
+    # a post: a level scan's return 3 m ahead lies at the scan plane's height over the ground
+    # (above the 0.3 m cap): an obstacle, floor or not
+    level = (dem, est, 0.0, 0.0, 0.3, t_b, R_b, 0.15, 0.0, 2.0, 0.3)
+    p0, R0 = scanner_pose_3d(dem, *est[:3], 0.0, 0.0, 0.3, t_b, R_b)
+    assert p0[2] - dem(p0[0] + 3.0, 0.0) > 0.4
+    assert not terrain_ground(*level, sd_min=0.5)(np.array([0.0]), np.array([3.0]))[0]

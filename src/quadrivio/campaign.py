@@ -57,7 +57,8 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
            # closed-loop runs with obstacles and actors (OBSTACLES.md)
            ("completed", "completed", ""), ("collisions", "collisions", ""),
            ("min_clearance_m", "min clearance", "m"), ("protective_stops", "protective stops", ""),
-           ("false_stops", "false stops", ""), ("time_blocked_s", "time blocked", "s"))
+           ("false_stops", "false stops", ""), ("anticipated_stops", "anticipated stops", ""),
+           ("time_blocked_s", "time blocked", "s"))
 
 
 SCHEDULER_TIMEOUT = 10.0  # [s] to connect to --scheduler

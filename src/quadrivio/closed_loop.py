@@ -408,7 +408,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
             ground = terrain_ground(g_heights, pose[1:4] + (pose[5],), g_att.roll, g_att.pitch, v.wheel_radius, t_b,
                                     R_b, gnode.ground_tolerance, 0.0, gnode.ground_position_sigmas,
-                                    gnode.ground_tolerance_max)
+                                    gnode.ground_tolerance_max, gnode.ground_position_sd_min)
             gr = scan_ground(ground, ranges, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
                              MAX_RANGE)
             if gr.any():

@@ -988,6 +988,8 @@ public:
     d.scanner = who;
     if (!who.empty())
       d.scan_stamp = scans_[scannerIndex(who)].stamp;
+    else
+      d.scan_stamp = judged(now, direction);
     d.direction = direction;
     d.slope = slope;
     if (v >= p.stop_speed && d_free < d_prot)
@@ -1099,6 +1101,19 @@ private:
         return format("%s blinded: %.0f %% of its rays invalid", s.topic.c_str(), 100.0 * sc.invalid_fraction);
     }
     return "";
+  }
+
+  // With nothing in the sweep, the newest fresh scan of the scanners guarding the motion (guard.Guard._judged)
+  double judged(double now, int direction) const
+  {
+    double newest = std::numeric_limits<double>::quiet_NaN();
+    for (size_t i = 0; i < p_.scanners.size(); ++i)
+    {
+      const ScanState& sc = scans_[i];
+      if (covers(p_.scanners[i], direction) && sc.error.empty() && now - sc.stamp <= p_.scan_timeout)
+        newest = std::isnan(newest) ? sc.stamp : std::max(newest, sc.stamp);
+    }
+    return newest;
   }
 
   // Every fresh scanner's points into points_ (owners_: each point's scanner)
@@ -1303,7 +1318,8 @@ struct Config
   double imu_rpy[3] = { 0.0, 0.0, 0.0 };
   double imu_xyz[3] = { 0.0, 0.0, 0.0 };
   std::string base_frame = "base_link";
-  double request_timeout = 0.25, ground_tolerance = 0.15, ground_position_sigmas = 2.0, ground_tolerance_max = 0.3;
+  double request_timeout = 0.25, ground_tolerance = 0.15, ground_position_sigmas = 2.0, ground_tolerance_max = 0.3,
+         ground_position_sd_min = 0.5;
   Heightfield terrain;
 };
 
@@ -1416,6 +1432,8 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
       c.ground_position_sigmas = x[0];
     else if (std::sscanf(line, "node ground_tolerance_max %lf", &x[0]) == 1)
       c.ground_tolerance_max = x[0];
+    else if (std::sscanf(line, "node ground_position_sd_min %lf", &x[0]) == 1)
+      c.ground_position_sd_min = x[0];
     else if (std::sscanf(line, "terrain %d %d %lf %lf %lf", &c.terrain.rows, &c.terrain.cols, &x[0], &x[1], &x[2]) == 5)
     {
       Heightfield& hf = c.terrain;

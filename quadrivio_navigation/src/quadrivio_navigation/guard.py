@@ -422,8 +422,8 @@ class Guard:
             limit = max(limit, p.creep_speed)
         d = Decision(CLEAR, limit, free=d_free,
                      protective=d_prot, protective_request=d_prot_req, warning=d_warn, nearest=free.point,
-                     scanner=who, scan_stamp=self.scans[who].stamp if who else math.nan, direction=direction,
-                     slope=slope)
+                     scanner=who, scan_stamp=self.scans[who].stamp if who else self._judged(now, direction),
+                     direction=direction, slope=slope)
         if v >= p.stop_speed and d_free < d_prot:
             d.action, d.field = STOP, "protective"
             d.reason = (f"{what} {max(d_free, 0.0):.2f} m along the path, inside the protective field "
@@ -508,6 +508,16 @@ class Guard:
         free = free_distance(self.fp, poses, points, p.step)
         self._free_cache = (key, poses, free)
         return poses, free
+
+    def _judged(self, now: float, direction: int) -> float:
+        """With nothing in the sweep, the scan judged: the newest fresh one of the scanners
+        guarding the motion (a later stop on the same scan was then entered by motion)."""
+        newest = math.nan
+        for s in self.p.scanners:
+            sc = self.scans[s.topic]
+            if self._covers(s, direction) and not sc.error and now - sc.stamp <= self.p.scan_timeout:
+                newest = sc.stamp if math.isnan(newest) else max(newest, sc.stamp)
+        return newest
 
     def _points(self, now: float):
         """Every fresh scanner's points (each guards whatever it sees, whichever direction it
@@ -624,6 +634,11 @@ class GuardNodeParams:
     ground_tolerance_max: float = param(
         0.3, lo=0.0, hi=2.0, unit="m", doc="the ground tolerance never exceeds this: keep it under the scan "
                                            "plane's height over the ground (0.57 m for the front laser)")
+    ground_position_sd_min: float = param(
+        0.5, lo=0.0, hi=10.0, unit="m",
+        doc="the ground test takes the pose's horizontal sd as at least this: an estimate on rough ground can be "
+            "off several of its own sds (the GNSS receiver's drift, a multipath burst let back in), and a return on "
+            "a bump's face then looks like an obstacle")
 
 
 def load_zone_file(path: str):

@@ -244,14 +244,16 @@ def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position
 
 def terrain_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], pose, roll: float, pitch: float,
                    wheel_radius: float, t_b, R_b, tolerance: float, per_metre: float, sigmas: float,
-                   cap: float) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+                   cap: float, sd_min: float = 0.0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """The ground test (:func:`dem_ground`) of a scan from a scanner mounted at ``t_b``,
     ``R_b`` (base_link) on a vehicle at ``pose`` (x, y, yaw, horizontal sd of the position)
-    with ``roll`` and ``pitch``: the slack is ``sigmas`` of that sd. The guard and the layer
-    (their nodes and the one-process loop) all call this."""
+    with ``roll`` and ``pitch``: the slack is ``sigmas`` of that sd, taken as at least
+    ``sd_min`` (the guard's ``ground_position_sd_min``: the estimate's own sd can be a third
+    of its error on rough ground). The guard and the layer (their nodes and the one-process
+    loop) all call this."""
     x, y, yaw, sd = pose
     pos, R = scanner_pose_3d(heights, x, y, yaw, roll, pitch, wheel_radius, t_b, R_b)
-    return dem_ground(heights, pos, R, tolerance, per_metre, sigmas * sd, cap)
+    return dem_ground(heights, pos, R, tolerance, per_metre, sigmas * max(sd, sd_min), cap)
 
 
 def scan_in_map(x: float, y: float, yaw: float, t_b, R_b, angle_min: float, angle_increment: float, ranges,

@@ -14,7 +14,8 @@ from the parameter server and writes on stdout, one item per line (floats as Pyt
     imu_rpy <roll> <pitch> <yaw>              the IMU's mount in base_link
     imu_xyz <x> <y> <z>                       ...and its position (the attitude's lever arm)
     node <name> <value>                       base_frame, request_timeout, ground_tolerance,
-                                              ground_position_sigmas, ground_tolerance_max
+                                              ground_position_sigmas, ground_tolerance_max,
+                                              ground_position_sd_min
     terrain <rows> <cols> <res> <x0> <y0>     then rows x cols float64 heights (row-major,
                                               little-endian, row index growing with y)
     end
@@ -63,6 +64,7 @@ def emit(out: BinaryIO, p, node, vehicle, hf) -> None:
     lines.append(f"node ground_tolerance {node.ground_tolerance!r}")
     lines.append(f"node ground_position_sigmas {node.ground_position_sigmas!r}")
     lines.append(f"node ground_tolerance_max {node.ground_tolerance_max!r}")
+    lines.append(f"node ground_position_sd_min {node.ground_position_sd_min!r}")
     out.write(("\n".join(lines) + "\n").encode())
     if hf is not None:
         rows, cols = hf.z.shape

@@ -125,7 +125,8 @@ class GuardNode:
         n = self.node_params
         ground = terrain_ground(self.heights, pose[1:], self.attitude.roll, self.attitude.pitch,
                                 self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3],
-                                n.ground_tolerance, 0.0, n.ground_position_sigmas, n.ground_tolerance_max)
+                                n.ground_tolerance, 0.0, n.ground_position_sigmas, n.ground_tolerance_max,
+                                n.ground_position_sd_min)
         return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:
