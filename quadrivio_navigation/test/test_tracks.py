@@ -158,3 +158,9 @@ def test_a_thing_that_moved_and_stopped_is_kept_further_away():
     for k in range(30):
         pr = tr.update(0.1 * k, raycast((0.0, 0.0, 0.0), [(8.0, 0.0, 0.3)], mount=(1.7, 0.0)), (0.0, 0.0, 0.0))
     assert len(pr.xy) == 0
+
+
+def test_the_guards_track_keys_are_the_trackers_defaults():
+    """GuardParams' track_* defaults (config/guard.yaml states them: test_config_files) are
+    TrackParams' own."""
+    assert GuardParams().tracks() == TrackParams()
