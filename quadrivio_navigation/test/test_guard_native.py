@@ -260,3 +260,21 @@ def test_moving_obstacles_match_the_python_core(seed):
     _compare(py, cpp)
     moving = [d.reason for d, *_ in py if "moving obstacle" in d.reason]
     assert moving, "no decision acted on a moving obstacle: the comparison tests little"
+
+
+@pytest.mark.parametrize("edit, error", [
+    (lambda t: t.replace("param track_min_obs 3.0", "param track_min_obs 2.5"),
+     "parameter 'track_min_obs' must be a whole number"),
+    (lambda t: "\n".join(ln for ln in t.splitlines() if not ln.startswith("param track_max_points ")) + "\n",
+     "no value for parameter 'track_max_points'"),
+    (lambda t: t.replace("param track_coast ", "param track_coasting "), "unknown parameter 'track_coasting'"),
+])
+def test_the_cpp_reader_names_a_bad_configuration(edit, error):
+    """The roscpp guard's reader (guard_core.h readConfig): the tracker's whole-number keys
+    refuse a fraction, and a missing or unknown key is named, not defaulted."""
+    text = _config(GuardParams(), load_vehicle()).decode()
+    assert "param track_min_obs 3.0\n" in text and "param track_coast " in text
+    r = subprocess.run([_replay_binary()], input=edit(text).encode(), stdout=subprocess.PIPE,
+                       stderr=subprocess.PIPE, timeout=60)
+    assert r.returncode == 1
+    assert error in r.stderr.decode()

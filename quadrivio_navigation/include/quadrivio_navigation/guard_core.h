@@ -723,34 +723,8 @@ struct Params
          max_scan_age = 0.25, max_future = 0.05, state_timeout = 0.2, blind_fraction = 0.5, clear_time = 1.0,
          release_accel = 0.5, stop_speed = 0.1, stop_brake = 1.0, slope_unknown = 0.15, slope_tau = 4.0,
          slope_smoothing = 1.0, imu_timeout = 0.5, zone_sigmas = 2.0, max_position_sd = 1.0, pose_timeout = 0.3;
-  double track_horizon = 2.0, track_cluster_gap = 0.3, track_max_extent = 1.25, track_max_range = 15.0,
-         track_gate = 0.3, track_max_speed = 5.0, track_min_speed = 0.5, track_window = 0.8, track_min_obs = 3,
-         track_min_span = 0.15, track_max_residual = 0.08, track_min_travel = 0.3, track_min_points = 3, track_shape_change = 0.25, track_coast = 0.5,
-         track_step = 0.1, track_max_points = 8, track_clearance = 0.2;
+  TrackParams track;  // the moving-obstacle tracker's keys, track_<name> in the configuration
   std::vector<Point> zone;
-  TrackParams tracks() const
-  {
-    TrackParams t;
-    t.horizon = track_horizon;
-    t.cluster_gap = track_cluster_gap;
-    t.max_extent = track_max_extent;
-    t.max_range = track_max_range;
-    t.gate = track_gate;
-    t.max_speed = track_max_speed;
-    t.min_speed = track_min_speed;
-    t.window = track_window;
-    t.min_obs = static_cast<int>(track_min_obs);
-    t.min_span = track_min_span;
-    t.max_residual = track_max_residual;
-    t.min_travel = track_min_travel;
-    t.min_points = static_cast<int>(track_min_points);
-    t.shape_change = track_shape_change;
-    t.coast = track_coast;
-    t.step = track_step;
-    t.max_points = static_cast<int>(track_max_points);
-    t.clearance = track_clearance;
-    return t;
-  }
 };
 
 struct Vehicle
@@ -785,7 +759,7 @@ public:
   Guard(const Params& p, const Vehicle& v, const Heightfield* terrain = nullptr)
     : p_(p), v_(v), fp_(v.body.grown(p.padding)), scans_(p.scanners.size()),
       terrain_(terrain != nullptr && !terrain->empty() ? terrain : nullptr),
-      trackers_(p.scanners.size(), MotionTracker(p.tracks()))
+      trackers_(p.scanners.size(), MotionTracker(p.track))
   {
   }
 
@@ -972,7 +946,7 @@ public:
     const double moving = free.index >= 0 ? speeds_[static_cast<size_t>(free.index)] : 0.0;
     const std::string what =
         moving == 0.0 ? std::string("obstacle") :
-                        format("moving obstacle (%.1f m/s, where it may be within %.1f s)", moving, p.track_horizon);
+                        format("moving obstacle (%.1f m/s, where it may be within %.1f s)", moving, p.track.horizon);
     double limit = allowedSpeed(d_free - p.warning_margin, t_warn, a_slow);
     if (d_free >= p.creep_margin)
       limit = std::max(limit, p.creep_speed);
@@ -1353,24 +1327,26 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "zone_sigmas", &c.params.zone_sigmas },
     { "max_position_sd", &c.params.max_position_sd },
     { "pose_timeout", &c.params.pose_timeout },
-    { "track_horizon", &c.params.track_horizon },
-    { "track_cluster_gap", &c.params.track_cluster_gap },
-    { "track_max_extent", &c.params.track_max_extent },
-    { "track_max_range", &c.params.track_max_range },
-    { "track_gate", &c.params.track_gate },
-    { "track_max_speed", &c.params.track_max_speed },
-    { "track_min_speed", &c.params.track_min_speed },
-    { "track_window", &c.params.track_window },
-    { "track_min_obs", &c.params.track_min_obs },
-    { "track_min_span", &c.params.track_min_span },
-    { "track_max_residual", &c.params.track_max_residual },
-    { "track_min_travel", &c.params.track_min_travel },
-    { "track_min_points", &c.params.track_min_points },
-    { "track_shape_change", &c.params.track_shape_change },
-    { "track_coast", &c.params.track_coast },
-    { "track_step", &c.params.track_step },
-    { "track_max_points", &c.params.track_max_points },
-    { "track_clearance", &c.params.track_clearance },
+    { "track_horizon", &c.params.track.horizon },
+    { "track_cluster_gap", &c.params.track.cluster_gap },
+    { "track_max_extent", &c.params.track.max_extent },
+    { "track_max_range", &c.params.track.max_range },
+    { "track_gate", &c.params.track.gate },
+    { "track_max_speed", &c.params.track.max_speed },
+    { "track_min_speed", &c.params.track.min_speed },
+    { "track_window", &c.params.track.window },
+    { "track_min_span", &c.params.track.min_span },
+    { "track_max_residual", &c.params.track.max_residual },
+    { "track_min_travel", &c.params.track.min_travel },
+    { "track_shape_change", &c.params.track.shape_change },
+    { "track_coast", &c.params.track.coast },
+    { "track_step", &c.params.track.step },
+    { "track_clearance", &c.params.track.clearance },
+  };
+  std::map<std::string, int*> counts = {  // whole numbers: a fraction is an error
+    { "track_min_obs", &c.params.track.min_obs },
+    { "track_min_points", &c.params.track.min_points },
+    { "track_max_points", &c.params.track.max_points },
   };
   std::map<std::string, bool> seen;
   char line[4096];
@@ -1387,6 +1363,9 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
       for (const auto& kv : fields)
         if (!seen[kv.first])
           return error = "no value for parameter '" + kv.first + "'", false;
+      for (const auto& kv : counts)
+        if (!seen[kv.first])
+          return error = "no value for parameter '" + kv.first + "'", false;
       if (c.params.scanners.empty())
         return error = "no scanner", false;
       if (!has_body || !has_vehicle)
@@ -1396,9 +1375,15 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     if (std::sscanf(line, "param %255s %lf", a, &x[0]) == 2)
     {
       auto it = fields.find(a);
-      if (it == fields.end())
+      auto n = counts.find(a);
+      if (it != fields.end())
+        *it->second = x[0];
+      else if (n != counts.end() && x[0] == std::floor(x[0]) && std::fabs(x[0]) < 1e9)
+        *n->second = static_cast<int>(x[0]);
+      else if (n != counts.end())
+        return error = std::string("parameter '") + a + "' must be a whole number", false;
+      else
         return error = std::string("unknown parameter '") + a + "'", false;
-      *it->second = x[0];
       seen[a] = true;
     }
     else if (std::sscanf(line, "scanner %255s %255s %255s", a, b, d) == 3)
