@@ -21,7 +21,7 @@ import yaml
 
 from quadrivio.metrics import PLANNED_KEYS
 
-pytestmark = pytest.mark.system
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def _ros(scenario, out, seed):

@@ -16,7 +16,7 @@ import yaml
 
 from quadrivio.scenario import resolve
 
-pytestmark = pytest.mark.system
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def _scenario(folder) -> str:

@@ -6,7 +6,7 @@ import subprocess
 import pytest
 from conftest import short_scenario
 
-pytestmark = pytest.mark.system
+pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
 def _run(scenario, out):

@@ -17,8 +17,10 @@ mkdir -p "$LOGS"
 failed=()
 
 if [ "$mode" = all ] || [ "$mode" = unit ]; then
-  printf '\n[test] unit tests (pytest -m "not system")\n'
-  if ! python3 -m pytest -q -m "not system"; then
+  # in one process per core (pytest-xdist), a file's tests in one of them: its module
+  # fixtures (a campaign, a simulated run) are built once
+  printf '\n[test] unit tests (pytest -m "not system", %s processes)\n' "$(nproc)"
+  if ! python3 -m pytest -q -m "not system" -n "$(nproc)" --dist loadfile --durations=5; then
     failed+=("unit tests")
   fi
 fi
@@ -48,7 +50,12 @@ fi
 
 if [ "$mode" = all ] || [ "$mode" = system ]; then
   printf '\n[test] system tests (pytest -m system: the stack through the user commands)\n'
-  if ! python3 -m pytest -q -m system --durations=8; then  # the slowest: where make test's time goes
+  # lockstep and one-process runs do not depend on the machine's speed: one per core; the
+  # free-running ones alone, as a user runs them (--durations: where make test's time goes)
+  if ! python3 -m pytest -q -m "system and lockstep" -n "$(nproc)" --dist load --durations=4; then
+    failed+=("system tests (lockstep)")
+  fi
+  if ! python3 -m pytest -q -m "system and not lockstep" --durations=6; then
     failed+=("system tests")
   fi
 fi
