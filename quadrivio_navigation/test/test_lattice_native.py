@@ -16,12 +16,15 @@ from quadrivio_navigation.synthetic_maps import Canvas, scattered
 VEHICLE = load_vehicle()
 
 
-def planners(grid, expansions: int, reverse: bool = True, **lattice_changes):
+def planners(grid, expansions: int, reverse: bool = True, padding=None, **lattice_changes):
     """The native and the Python lattice on one grid, bounded by expansions (not time)."""
     out = []
     for native in (True, False):
         lp = dataclasses.replace(LatticeParams(), native=native, max_expansions=expansions, **lattice_changes)
-        out.append(Planner(grid, VEHICLE, PlannerParams(planner="lattice", budget=600.0, reverse=reverse, lattice=lp)))
+        p = PlannerParams(planner="lattice", budget=600.0, reverse=reverse, lattice=lp)
+        if padding is not None:
+            p = dataclasses.replace(p, cost=dataclasses.replace(p.cost, padding=padding))
+        out.append(Planner(grid, VEHICLE, p))
     return out
 
 
@@ -75,8 +78,9 @@ def test_native_search_from_a_start_joined_by_connectors():
     cv.box(5.0, 3.0, 4.0, 2.0)
     cv.border(1.0)
     grid = cv.grid()
-    nat, py = planners(grid, 20000)
+    nat, py = planners(grid, 20000, padding=0.15)  # the geometry below is drawn for this padding
     start = (5.3, 2.0 - nat.footprint.left - 0.21, 0.0)
+    assert nat.check_pose(start, "start") == "" and "collision" in nat.check_pose((5.5, 1.5, 0.0), "snapped")
     a, b = search(nat, start, (20.0, -5.0, 0.0)), search(py, start, (20.0, -5.0, 0.0))
     assert a.ok
     same(a, b)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_navigation.costmap import CostParams
 from quadrivio_navigation.curves import check_curvature
 from quadrivio_navigation.maps import OccupancyGrid
 from quadrivio_navigation.planning import OmplParams, Planner, PlannerParams, plan
@@ -238,11 +239,12 @@ def test_the_lattice_plans_from_a_start_just_clear_of_a_block():
     cv.box(5.0, 3.0, 4.0, 2.0)  # a block whose lower edge is at y = 2.0
     cv.border(1.0)
     grid = cv.grid()
-    fp = Planner(grid, VEHICLE, params("lattice")).footprint
+    cost = dataclasses.replace(CostParams(), padding=0.15)  # the geometry below is drawn for this padding
+    fp = Planner(grid, VEHICLE, params("lattice", cost=cost)).footprint
     start = (5.3, 2.0 - fp.left - 0.21, 0.0)  # the footprint's left side 0.21 m below the block
     snapped = (5.5, 1.5, 0.0)  # its cell's centre
     for kind in PLANNERS:
-        planner = Planner(grid, VEHICLE, params(kind, budget=3.0))
+        planner = Planner(grid, VEHICLE, params(kind, budget=3.0, cost=cost))
         assert planner.check_pose(start, "start") == "" and "collision" in planner.check_pose(snapped, "snapped")
         r = planner.plan(start, (20.0, -5.0, 0.0))
         assert r.ok, f"{kind}: {r.reason}"

@@ -108,7 +108,7 @@ def densify(poses: np.ndarray, step: float, angle_step: float = 0.05) -> np.ndar
 class CostParams:
     lethal: int = param(65, lo=1, hi=100, doc="map cells at or above this value are obstacles")
     unknown: str = param("occupied", choices=("free", "occupied"), doc="how unknown (-1) cells count")
-    padding: float = param(0.15, lo=0.0, hi=5.0, unit="m", doc="margin added to each side of the footprint")
+    padding: float = param(0.35, lo=0.0, hi=5.0, unit="m", doc="margin added to each side of the footprint")
     cost_weight: float = param(2.0, lo=0.0, hi=100.0,
                                doc="a motion's cost grows by this factor times its highest cell cost (0..1)")
     inflation: float = param(1.0, lo=0.0, hi=50.0, unit="m",
