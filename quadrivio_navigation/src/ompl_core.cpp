@@ -542,12 +542,13 @@ double qv_curve_length(double x0, double y0, double th0, double x1, double y1, d
 // theta, direction of the motion to the next pose) are kept with the map: their number
 // goes to out_n, qv_ompl_fetch copies them. stats get [time to first solution s, solve
 // time s, simplification time s, cost, length m, states in the planner's data, first
-// solution's cost]. Returns 0 on success, 1 when no path was found (msg says why), 2 on
-// bad arguments.
+// solution's cost]. Without a path by first_budget s the search stops (the caller may hand
+// over to another planner); with one, restarts improve it until budget s. Returns 0 on
+// success, 1 when no path was found (msg says why), 2 on bad arguments.
 static int plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
-                double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
-                double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
-                const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
+                double first_budget, double simplify, double range, double check_resolution, int stop_at_first,
+                double reverse_cost, double cost_weight, unsigned int seed, const double *start, const double *goal,
+                double sample_step, const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
 {
     auto *map = static_cast<Map *>(map_handle);
     if (!map || !planner_name || !start || !goal || !out_n || !stats || !(turning_radius > 0) ||
@@ -629,8 +630,10 @@ static int plan(void *map_handle, double turning_radius, int reverse, const char
     }
     planner->setProblemDefinition(pdef);
     planner->setup();
+    // no solution (first < 0: optimising planners report theirs as they find them) by first_by: stop
+    const double first_by = std::min(first_budget > 0 ? first_budget : budget, budget);
     ob::PlannerTerminationCondition ptc(
-        [&]() { return (cancel && *cancel) || elapsed() > budget; });
+        [&]() { return (cancel && *cancel) || elapsed() > budget || (first.load() < 0 && elapsed() > first_by); });
     // Non-optimising planners (RRTConnect, KPIECE, ...) restart after each solution until
     // the budget ends, each path simplified, the cheapest kept: an anytime planner out of
     // a fast one. Optimising planners (RRT*, BIT*, ...) improve their own solution instead.
@@ -756,17 +759,17 @@ static int plan(void *map_handle, double turning_radius, int reverse, const char
 }
 
 int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
-                 double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
-                 double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
-                 const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
+                 double first_budget, double simplify, double range, double check_resolution, int stop_at_first,
+                 double reverse_cost, double cost_weight, unsigned int seed, const double *start, const double *goal,
+                 double sample_step, const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len)
 {
     std::lock_guard<std::mutex> lock(g_plan_mutex);
     // No C++ exception may cross into the Python caller: it would end the process.
     try
     {
-        return plan(map_handle, turning_radius, reverse, planner_name, budget, simplify, range, check_resolution,
-                    stop_at_first, reverse_cost, cost_weight, seed, start, goal, sample_step, cancel, out_n, stats, msg,
-                    msg_len);
+        return plan(map_handle, turning_radius, reverse, planner_name, budget, first_budget, simplify, range,
+                    check_resolution, stop_at_first, reverse_cost, cost_weight, seed, start, goal, sample_step, cancel,
+                    out_n, stats, msg, msg_len);
     }
     catch (const std::exception &e)
     {

@@ -24,9 +24,9 @@ double qv_weighted_rs_cost(double x0, double y0, double th0, double x1, double y
 double qv_dubins_length(double x0, double y0, double th0, double x1, double y1, double th1, double rho);
 double qv_curve_length(double x0, double y0, double th0, double x1, double y1, double th1, double rho, int reverse);
 int qv_ompl_plan(void *map_handle, double turning_radius, int reverse, const char *planner_name, double budget,
-                 double simplify, double range, double check_resolution, int stop_at_first, double reverse_cost,
-                 double cost_weight, unsigned int seed, const double *start, const double *goal, double sample_step,
-                 const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len);
+                 double first_budget, double simplify, double range, double check_resolution, int stop_at_first,
+                 double reverse_cost, double cost_weight, unsigned int seed, const double *start, const double *goal,
+                 double sample_step, const volatile int *cancel, int *out_n, double *stats, char *msg, int msg_len);
 int qv_ompl_fetch(void *map_handle, double *out, int cap);
 }
 
@@ -63,8 +63,8 @@ Plan plan(void *map, const double *start, const double *goal, const char *planne
           double budget = 1.0)
 {
     Plan p;
-    p.rc = qv_ompl_plan(map, kRho, reverse, planner, budget, 0.2, 0.0, 0.0, 1, 2.0, 1.0, 7u, start, goal, 0.1, nullptr,
-                        &p.n, p.stats, p.msg, sizeof(p.msg));
+    p.rc = qv_ompl_plan(map, kRho, reverse, planner, budget, budget, 0.2, 0.0, 0.0, 1, 2.0, 1.0, 7u, start, goal, 0.1,
+                        nullptr, &p.n, p.stats, p.msg, sizeof(p.msg));
     return p;
 }
 }  // namespace
@@ -79,12 +79,12 @@ TEST(OmplCore, BadArgumentsAreRefusedNotCrashed)
     Yard yard(100, 100, 0.2);
     const double s[3] = {5, 10, 0}, g[3] = {15, 10, 0};
     Plan p;
-    p.rc = qv_ompl_plan(nullptr, kRho, 1, "RRTConnect", 1.0, 0.2, 0, 0, 1, 2.0, 1.0, 1u, s, g, 0.1, nullptr, &p.n,
-                        p.stats, p.msg, sizeof(p.msg));
+    p.rc = qv_ompl_plan(nullptr, kRho, 1, "RRTConnect", 1.0, 1.0, 0.2, 0, 0, 1, 2.0, 1.0, 1u, s, g, 0.1, nullptr,
+                        &p.n, p.stats, p.msg, sizeof(p.msg));
     EXPECT_EQ(p.rc, 2);
     EXPECT_STREQ(p.msg, "bad arguments");
-    p.rc = qv_ompl_plan(yard.map, -1.0, 1, "RRTConnect", 1.0, 0.2, 0, 0, 1, 2.0, 1.0, 1u, s, g, 0.1, nullptr, &p.n,
-                        p.stats, p.msg, sizeof(p.msg));
+    p.rc = qv_ompl_plan(yard.map, -1.0, 1, "RRTConnect", 1.0, 1.0, 0.2, 0, 0, 1, 2.0, 1.0, 1u, s, g, 0.1, nullptr,
+                        &p.n, p.stats, p.msg, sizeof(p.msg));
     EXPECT_EQ(p.rc, 2);  // a negative turning radius
     Plan q = plan(yard.map, s, g, "NoSuchPlanner");
     EXPECT_EQ(q.rc, 2);

@@ -252,6 +252,31 @@ def test_the_lattice_plans_from_a_start_just_clear_of_a_block():
         assert collision_free(planner, r.poses)
 
 
+def test_ompl_improves_a_path_found_in_its_share_for_the_whole_budget():
+    """The hand-over share bounds OMPL's search for a first path, not its improvement: with a
+    path early, RRTConnect restarts for the whole budget (as the lattice's ARA* improves for
+    its), and what it returns is no dearer than its first path."""
+    grid = scattered(size=40.0, res=0.2, seed=4, rocks=12, buildings=2)
+    planner = Planner(grid, VEHICLE, params("ompl", budget=1.0, ompl=dataclasses.replace(OmplParams(), hand_over=0.3)))
+    rng = np.random.default_rng(4)
+    done = 0
+    for _ in range(200):
+        if done == 2:
+            break
+        s = (rng.uniform(-15, 15), rng.uniform(-15, 15), rng.uniform(-math.pi, math.pi))
+        g = (rng.uniform(-15, 15), rng.uniform(-15, 15), rng.uniform(-math.pi, math.pi))
+        if math.hypot(s[0] - g[0], s[1] - g[1]) < 15.0 or planner.check_pose(s, "s") or planner.check_pose(g, "g"):
+            continue
+        r = planner.plan(s, g)
+        if not r.ok or r.time_to_first > 0.3:
+            continue
+        done += 1
+        assert r.planner == "ompl" and r.planning_time >= 1.0, (r.planner, r.planning_time)
+        assert r.cost <= r.solutions[0][1] + 1e-9
+        assert collision_free(planner, r.poses)
+    assert done == 2
+
+
 def test_ompl_hands_over_to_the_lattice_in_the_rest_of_its_budget():
     """Where sampling finds no way in its share of the budget (here a share of 6 ms, too short
     for any path through a 30 m passage), the lattice plans in the rest, and the result says so."""

@@ -19,7 +19,7 @@ import math
 import os
 import threading
 from dataclasses import dataclass, field
-from typing import Callable, List, Tuple
+from typing import Callable, List, Optional, Tuple
 
 import numpy as np
 
@@ -83,7 +83,7 @@ def load_library():
         lib.qv_ompl_plan.restype = ctypes.c_int
         lib.qv_ompl_plan.argtypes = [
             ctypes.c_void_p, ctypes.c_double, ctypes.c_int, ctypes.c_char_p, ctypes.c_double, ctypes.c_double,
-            ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_uint,
+            ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_uint,
             c_double_p, c_double_p, ctypes.c_double, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int),
             c_double_p, ctypes.c_char_p, ctypes.c_int]
         lib.qv_ompl_fetch.restype = ctypes.c_int
@@ -167,8 +167,10 @@ class OmplPlanner:
         return self.lib.qv_map_pose_cost(self.handle, x, y, th)
 
     def plan(self, start, goal, budget: float, p, seed: int, sample_step: float,
-             cancelled: Callable[[], bool] = lambda: False) -> OmplResult:
-        """``p``: :class:`quadrivio_navigation.planning.OmplParams`."""
+             cancelled: Callable[[], bool] = lambda: False, first_budget: Optional[float] = None) -> OmplResult:
+        """``p``: :class:`quadrivio_navigation.planning.OmplParams`. Without a path by
+        ``first_budget`` seconds (default: ``budget``) the search gives up; with one, it goes on
+        improving it (restarts, or the optimising planner's own) until ``budget``."""
         if p.planner not in planners():
             return OmplResult(False, f"unknown OMPL planner '{p.planner}' (one of {', '.join(planners())})")
         flag = ctypes.c_int(0)
@@ -189,8 +191,9 @@ class OmplPlanner:
         msg = ctypes.create_string_buffer(512)
         try:
             rc = self.lib.qv_ompl_plan(self.handle, self.r, int(self.reverse), p.planner.encode(), float(budget),
-                                       float(p.simplify), float(p.range), float(p.check_resolution),
-                                       int(p.stop_at_first), float(self.reverse_cost), float(self.cost_weight),
+                                       float(budget if first_budget is None else first_budget), float(p.simplify),
+                                       float(p.range), float(p.check_resolution), int(p.stop_at_first),
+                                       float(self.reverse_cost), float(self.cost_weight),
                                        int(seed) & 0xFFFFFFFF, s, g, float(sample_step), ctypes.byref(flag),
                                        ctypes.byref(n), stats, msg, len(msg))
         finally:
