@@ -83,9 +83,9 @@ def load_library():
         lib.qv_ompl_plan.restype = ctypes.c_int
         lib.qv_ompl_plan.argtypes = [
             ctypes.c_void_p, ctypes.c_double, ctypes.c_int, ctypes.c_char_p, ctypes.c_double, ctypes.c_double,
-            ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_double, ctypes.c_uint,
-            c_double_p, c_double_p, ctypes.c_double, ctypes.POINTER(ctypes.c_int), ctypes.POINTER(ctypes.c_int),
-            c_double_p, ctypes.c_char_p, ctypes.c_int]
+            ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int, ctypes.c_double, ctypes.c_double,
+            ctypes.c_uint, c_double_p, c_double_p, ctypes.c_double, ctypes.POINTER(ctypes.c_int),
+            ctypes.POINTER(ctypes.c_int), c_double_p, ctypes.c_char_p, ctypes.c_int]
         lib.qv_ompl_fetch.restype = ctypes.c_int
         lib.qv_ompl_fetch.argtypes = [ctypes.c_void_p, c_double_p, ctypes.c_int]
         # the lattice's search (lattice.py, src/lattice_core.cpp)
