@@ -12,7 +12,7 @@ pytestmark = pytest.mark.system
 
 
 def test_a_person_on_the_path_stops_the_vehicle_until_they_walk_away(tmp_path):
-    r = subprocess.run(["rosrun", "quadrivio", "experiment", "person_on_path", "--out", str(tmp_path), "--rtf", "2",
+    r = subprocess.run(["rosrun", "quadrivio", "experiment", "person_on_path", "--out", str(tmp_path),
                         "--wall-timeout", "300"], capture_output=True, text=True, timeout=420)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     m = json.loads((tmp_path / "metrics.json").read_text())

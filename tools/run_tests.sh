@@ -50,44 +50,69 @@ fi
 
 if [ "$mode" = all ] || [ "$mode" = system ]; then
   printf '\n[test] system tests (pytest -m system: the stack through the user commands)\n'
-  # lockstep and one-process runs do not depend on the machine's speed: one per core; the
-  # free-running ones alone, as a user runs them (--durations: where make test's time goes)
+  # lockstep and one-process runs do not depend on the machine's speed: one per core. The
+  # free-running ones run the stack at factor 1 (about a third of the machine each): two at
+  # a time, those that read one run in its xdist_group (--durations: where the time goes)
   if ! python3 -m pytest -q -m "system and lockstep" -n "$(nproc)" --dist load --durations=4; then
     failed+=("system tests (lockstep)")
   fi
-  if ! python3 -m pytest -q -m "system and not lockstep" --durations=6; then
+  if ! python3 -m pytest -q -m "system and not lockstep" -n 2 --dist loadgroup --durations=6; then
     failed+=("system tests")
   fi
 fi
 
 if [ "$mode" = all ] || [ "$mode" = rostest ]; then
   mapfile -t tests < <(cd "$ROOT" && ls test/*.test quadrivio_*/test/*.test 2>/dev/null | grep -e "$filter" | sort)
-  printf '\n[test] %d rostests\n' "${#tests[@]}"
-  i=0
+  # QUADRIVIO_TEST_JOBS at a time (default: one per core), then those whose file says
+  # "make test: alone" (they measure rates against the wall clock) one at a time. rostest
+  # gives each test its own master; the emulated PLC's port is the one other thing two
+  # stacks would share, so each test gets its own (QUADRIVIO_PLC_PORT, read by the launch files).
+  jobs_max=${QUADRIVIO_TEST_JOBS:-$(nproc)}
+  shared=() alone=()
   for t in "${tests[@]}"; do
-    i=$((i + 1))
+    if grep -q "make test: alone" "$t"; then alone+=("$t"); else shared+=("$t"); fi
+  done
+  printf '\n[test] %d rostests: %d at a time, then %d alone\n' "${#tests[@]}" "$jobs_max" "${#alone[@]}"
+  failed_file="$LOGS/rostests_failed"
+  : > "$failed_file"
+  run_rostest() {  # index, file: one line of result, the failure's details under it
+    local i=$1 t=$2 pkg name log results start out
     pkg=$(dirname "$(dirname "$t")")
     [ "$pkg" = . ] && pkg=quadrivio
     name=$(basename "$t")
     log="$LOGS/${pkg}__${name%.test}.log"
-    start=$(date +%s)
-    printf '[%2d/%d] %-45s ' "$i" "${#tests[@]}" "$pkg/$name"
     results="$LOGS/results/${pkg}__${name%.test}"
     rm -rf "$results"
+    start=$(date +%s)
     # rostest says SUCCESS with "TESTS: 0" when the checker never reported (a required node
     # died first): that is a failure
-    if rostest --results-base-dir "$results" "$pkg" "$name" > "$log" 2>&1 && grep -q "RESULT: SUCCESS" "$log" &&
-       ! grep -q "TESTS: 0" "$log"; then
-      printf 'ok     %4ds\n' "$(( $(date +%s) - start ))"
+    if QUADRIVIO_PLC_PORT=$((15020 + i)) rostest --results-base-dir "$results" "$pkg" "$name" > "$log" 2>&1 &&
+       grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"; then
+      printf '[%2d/%d] %-45s ok     %4ds\n' "$i" "${#tests[@]}" "$pkg/$name" "$(( $(date +%s) - start ))"
     else
-      printf 'FAILED %4ds  (log: %s)\n' "$(( $(date +%s) - start ))" "${log#$ROOT/}"
       # The assertion messages, from the JUnit files rostest writes; the log's own
-      # summary leaves them out.
-      python3 "$ROOT/tools/junit_failures.py" "$results" | sed 's/^/    /'
-      grep -E "FATAL|Traceback|process has died" "$log" | tail -n 5 | sed 's/^/    /'
-      failed+=("$pkg/$name")
+      # summary leaves them out. One printf for the whole block: the lines of two tests
+      # finishing together do not interleave.
+      out=$(printf '[%2d/%d] %-45s FAILED %4ds  (log: %s)\n' "$i" "${#tests[@]}" "$pkg/$name" \
+              "$(( $(date +%s) - start ))" "${log#$ROOT/}"
+            python3 "$ROOT/tools/junit_failures.py" "$results" | sed 's/^/    /'
+            grep -E "FATAL|Traceback|process has died" "$log" | tail -n 5 | sed 's/^/    /')
+      printf '%s\n' "$out"
+      echo "$pkg/$name" >> "$failed_file"
     fi
+  }
+  i=0
+  for t in "${shared[@]}"; do
+    i=$((i + 1))
+    while [ "$(jobs -rp | wc -l)" -ge "$jobs_max" ]; do wait -n; done
+    run_rostest "$i" "$t" &
   done
+  wait
+  for t in "${alone[@]}"; do
+    i=$((i + 1))
+    run_rostest "$i" "$t"
+  done
+  while read -r f; do failed+=("$f"); done < "$failed_file"
 fi
 
 if [ ${#failed[@]} -gt 0 ]; then
