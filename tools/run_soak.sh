@@ -18,7 +18,7 @@ printf '[soak] fault injection: 25000 stranger chunks, 100000 session chunks, %s
   "$rounds" "$log"
 results="$ROOT/.setup/test-logs/results/soak"  # absolute: the test node runs in $ROS_HOME
 rm -rf "$results"
-rostest --results-base-dir "$results" quadrivio faults.test fuzz_chunks:=25000 rounds:="$rounds" reentry_trips:="${SOAK_REENTRY_TRIPS:-10}" results:="$tmp" time_limit:=3600 > "$log" 2>&1
+rostest --results-base-dir "$results" quadrivio faults.test cases:=all fuzz_chunks:=25000 rounds:="$rounds" reentry_trips:="${SOAK_REENTRY_TRIPS:-10}" results:="$tmp" time_limit:=3600 > "$log" 2>&1
 grep -q "RESULT: SUCCESS" "$log" && ! grep -q "TESTS: 0" "$log"
 ok=$?
 # The PLC contract's second pass, long form: re-entry while sliding, valid-frame floods,
