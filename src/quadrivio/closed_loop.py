@@ -96,9 +96,9 @@ _series = Series.from_rows
 
 def _config(cls, package: str, name: str, s: Scenario, section: Optional[str]):
     """A node's parameters: its package's config file, then the scenario's section."""
-    import rospkg
+    from quadrivio_description.paths import ros_package_path
 
-    p = _defaults(cls, f"{rospkg.RosPack().get_path(package)}/config/{name}")
+    p = _defaults(cls, f"{ros_package_path(package)}/config/{name}")
     over = _section(s.data, section) if section else None
     return replace_nested(p, over, f"{s.path}: {section}") if over else p
 

@@ -93,12 +93,11 @@ def localizer_params(s: Optional[Scenario], mag_calibration: Optional[str] = "de
     sim.launch loads; ``None`` or ``""``: none), then the scenario's section."""
     import dataclasses
 
-    import rospkg
-
+    from quadrivio_description.paths import ros_package_path
     from quadrivio_localization.smoother import LocalizerParams
     from quadrivio_sim.paths import package_file
 
-    cfg = rospkg.RosPack().get_path("quadrivio_localization") + "/config/localization.yaml"
+    cfg = ros_package_path("quadrivio_localization") + "/config/localization.yaml"
     p = _defaults(LocalizerParams, cfg)
     if mag_calibration == "default":
         mag_calibration = package_file("config", "mag_calibration.yaml")
@@ -114,9 +113,9 @@ def _route(s: Scenario, start: Tuple[float, float, float]):
     from quadrivio_navigation.follower import FollowerConfig, make_route
     from quadrivio_navigation.paths import PathParams, path_points
 
-    import rospkg
+    from quadrivio_description.paths import ros_package_path
 
-    nav = rospkg.RosPack().get_path("quadrivio_navigation")
+    nav = ros_package_path("quadrivio_navigation")
     pp = _defaults(PathParams, nav + "/config/path.yaml")
     fp = _defaults(FollowerConfig, nav + "/config/follower.yaml")
     if _section(s.data, "path"):

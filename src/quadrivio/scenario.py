@@ -92,8 +92,8 @@ def _validators():
     from quadrivio_sim.simulator import SimParams
 
     def pkg(name: str, *parts: str) -> str:
-        import rospkg
-        return os.path.join(rospkg.RosPack().get_path(name), *parts)
+        from quadrivio_description.paths import ros_package_path
+        return os.path.join(ros_package_path(name), *parts)
 
     yield "vehicle", VehicleParams, default_vehicle_file()
     yield "sim", SimParams, sim_file("config", "sim.yaml")

@@ -166,6 +166,12 @@ def to_mapping(obj: Any) -> Any:
     return obj
 
 
+# libyaml's safe loader where PyYAML was built with it (Debian's is): the same data from every
+# config and scenario file, eight times faster than the pure-Python one (a closed-loop run
+# reads 19 files)
+_SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def load_yaml(path: str) -> Dict[str, Any]:
     """Read a YAML mapping, failing with a message that names the file."""
     if not path:
@@ -174,7 +180,7 @@ def load_yaml(path: str) -> Dict[str, Any]:
         raise ConfigError(f"{path}: file not found")
     try:
         with open(path, "r", encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
+            data = yaml.load(fh, Loader=_SAFE_LOADER)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: malformed YAML: {exc}") from exc
     except OSError as exc:
