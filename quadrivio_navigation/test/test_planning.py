@@ -329,3 +329,38 @@ def test_ompl_takes_a_goal_facing_exactly_west(yaw):
     r = planner.plan((0.0, 0.0, 0.0), (10.0, 0.0, yaw))
     assert r.ok and r.planner == "ompl", r.reason
     assert r.goal_offset[0] < 0.15 and r.goal_offset[1] < math.radians(12)
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_planners_share_the_primitives_and_their_swept_cells_and_plan_as_if_alone(native):
+    """The primitives and their swept cells are built once per process (a second of a plan's
+    CPU) and shared by planners on maps of other sizes: each binds its own copy to its grid, so
+    the dead end planned after an open yard of another width gives the path a
+    planner built from nothing gives."""
+    import quadrivio_navigation.lattice as lattice_mod
+    import quadrivio_navigation.planning as planning_mod
+
+    fixed = dataclasses.replace(PlannerParams().lattice, max_expansions=20000, native=native)
+    p = params("lattice", lattice=fixed, budget=30.0)
+    start, goal = (-10.0, 0.0, 0.0), (3.0, 0.0, math.pi)  # into the blind alley: reversing
+
+    def dead_end():
+        planner = Planner(dead_end_map(), VEHICLE, p)
+        return planner, planner.plan(start, goal)
+
+    planning_mod._generated.cache_clear()
+    del lattice_mod._TEMPLATES[:]
+    alone, ref = dead_end()
+    cv = Canvas(-5.0, -6.0, 31.0, 12.0, 0.2)
+    cv.border(0.4)
+    corridor = Planner(cv.grid(), VEHICLE, p)
+    assert corridor.cost.shape[1] != alone.cost.shape[1]  # another width: other flat offsets
+    open_first = corridor.plan((0.0, 0.0, 0.0), (-2.0, 3.0, math.pi))
+    assert open_first.ok, open_first.reason
+    shared, again = dead_end()
+    assert shared.lattice().ps is corridor.lattice().ps  # built once
+    assert shared.lattice().checker is corridor.lattice().checker
+    assert ref.ok, ref.reason
+    assert again.ok and np.array_equal(again.poses, ref.poses) and again.cost == ref.cost
+    open_again = corridor.plan((0.0, 0.0, 0.0), (-2.0, 3.0, math.pi))  # its own binding kept
+    assert np.array_equal(open_again.poses, open_first.poses)

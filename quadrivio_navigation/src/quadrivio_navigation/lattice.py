@@ -31,6 +31,7 @@ ROS-free.
 
 from __future__ import annotations
 
+import copy
 import heapq
 import math
 import threading
@@ -161,6 +162,28 @@ class PoseChecker:
         return self.rows[t] + cy.astype(int)[:, None], self.cols[t] + cx.astype(int)[:, None]
 
 
+_TEMPLATES: List[tuple] = []  # (primitives, res, footprint, [_Prims per heading], PoseChecker), newest last
+_TEMPLATES_KEPT = 4
+_TEMPLATES_LOCK = threading.Lock()
+
+
+def _templates(prims: PrimitiveSet, res: float, fp: Footprint) -> Tuple[List[_Prims], PoseChecker]:
+    """The swept cells of ``prims`` per start heading (unbound: each planner binds its own
+    copy to its grid's width) and the pose checker, for this primitive set object, cell size
+    and footprint. They do not depend on the map: building them took a second of a plan's
+    CPU (the orchard's), and a replan, or the next run of a campaign's worker, makes the same."""
+    with _TEMPLATES_LOCK:
+        for entry in _TEMPLATES:
+            if entry[0] is prims and entry[1] == res and entry[2] == fp:
+                return [copy.copy(pr) for pr in entry[3]], entry[4]
+    built = [_Prims(prims.for_heading(k), res, fp) for k in range(prims.headings)]
+    checker = PoseChecker(fp, res)
+    with _TEMPLATES_LOCK:
+        _TEMPLATES.append((prims, res, fp, built, checker))  # holds prims: its id is not reused meanwhile
+        del _TEMPLATES[:-_TEMPLATES_KEPT]
+    return [copy.copy(pr) for pr in built], checker
+
+
 class LatticePlanner:
     """ARA* over ``prims`` on a cost grid (grid frame: metres from cell (0, 0)'s corner)."""
 
@@ -174,8 +197,7 @@ class LatticePlanner:
         self.h, self.w = cost.shape
         self.cost_weight = cost_weight
         # padded cost grid: LETHAL around the map so that swept cells never index outside
-        self.prims = [_Prims(prims.for_heading(k), self.res, fp) for k in range(self.n)]
-        self.checker = PoseChecker(fp, self.res)
+        self.prims, self.checker = _templates(prims, self.res, fp)
         extent = max(max(pr.extent for pr in self.prims), self.checker.extent) + 2
         self.pad = extent
         self.wp = self.w + 2 * extent

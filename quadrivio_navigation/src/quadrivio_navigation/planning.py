@@ -21,6 +21,7 @@ ROS-free.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -59,6 +60,14 @@ class OmplParams:
 
 LATTICE_EXHAUSTED = "no drivable path: every lattice motion from the start was searched"  # lattice.py's reason
 MIN_FALLBACK = 1.0  # [s] OMPL's least time when the lattice hands a wedged start over to it
+
+
+@functools.lru_cache(maxsize=8)
+def _generated(p: GenerationParams) -> PrimitiveSet:
+    """:func:`generate`, once per process for a set of parameters (about a second of CPU: every
+    plan made it again, replans and a campaign worker's next run included). Read-only: the
+    planners share it."""
+    return generate(p)
 
 
 @dataclass(frozen=True)
@@ -134,8 +143,8 @@ class Planner:
             ps = read_mprim(lp.mprim_file)
             check_for_vehicle(ps, self.turning_radius / self.p.radius_margin, self.grid.resolution, lp.mprim_file)
             return ps
-        return generate(GenerationParams(self.turning_radius, self.grid.resolution, lp.headings, self.p.reverse,
-                                         self.p.reverse_cost, lp.long_step))
+        return _generated(GenerationParams(self.turning_radius, self.grid.resolution, lp.headings, self.p.reverse,
+                                           self.p.reverse_cost, lp.long_step))
 
     def lattice(self) -> LatticePlanner:
         if self._lattice is None:
