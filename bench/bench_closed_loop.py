@@ -6,6 +6,8 @@ bench/results/closed_loop.json:
   ``inprocess_sim_s_per_cpu_s``: the same over this process's CPU time (the figure the
   machine's load does not move); ``inprocess_cpu_share``: where that CPU goes (cProfile of
   a second run of 30 simulated seconds: the smoother, the simulator, the guard, ...);
+  ``pace_ms_before``/``_after``: the machine's pace around that run (bench/common.py
+  ``pace_ms``: the same fixed work each time; the machine's speed swings 30 % in minutes);
 * ``campaign_cl_sim_s_per_wall_s``: ``campaign --closed-loop`` of the figure eight and the
   orchard, ``--seeds`` seeds each (default 2), 2 local workers: simulated seconds over the
   campaign's wall seconds (target >= 20), and the same campaign's runs' own figures.
@@ -25,7 +27,7 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one core means one core (see launch/stack.launch)
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import machine, write_result  # noqa: E402
+from common import machine, pace_ms, write_result  # noqa: E402
 
 PARTS = {  # cProfile's cumulative time of these functions, each a share of the run's
     "smoother": "smoother.py:update", "simulator": "simulator.py:step", "guard": "guard.py:decide",
@@ -92,9 +94,12 @@ def main() -> None:
     args = ap.parse_args()
     result = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
     print("[bench closed_loop] one figure eight in this process", flush=True)
+    result["pace_ms_before"] = pace_ms()
     result.update(one_run())
+    result["pace_ms_after"] = pace_ms()
     print(f"[bench closed_loop] inprocess_rtf {result['inprocess_rtf']:.2f} "
-          f"({result['inprocess_sim_s_per_cpu_s']:.2f} simulated s per CPU s)", flush=True)
+          f"({result['inprocess_sim_s_per_cpu_s']:.2f} simulated s per CPU s; the machine's pace "
+          f"{result['pace_ms_before']:.1f} ms before, {result['pace_ms_after']:.1f} after)", flush=True)
     result["inprocess_cpu_share"] = profile()
     print(f"[bench closed_loop] CPU shares {result['inprocess_cpu_share']}", flush=True)
     if not args.skip_campaign:

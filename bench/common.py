@@ -24,6 +24,23 @@ def machine() -> str:
     return f"{platform.node()}: {os.cpu_count()} cores, {cpu}, Python {platform.python_version()}, {platform.platform()}"
 
 
+def pace_ms(repeats: int = 5) -> float:
+    """The machine's pace now: the fastest of ``repeats`` runs of a fixed piece of pure Python
+    (the closed loop's kind of work) [ms]. These machines' speed swings 30 % within minutes: a
+    speed figure read beside the pace taken just before it can be compared with another's."""
+    import math
+    import time
+
+    best = math.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        acc = 0.0
+        for i in range(200_000):
+            acc += math.sqrt(i) * 0.5 if i % 3 else -1.0
+        best = min(best, time.perf_counter() - t)
+    return 1000.0 * best
+
+
 def write_result(name: str, result: dict) -> str:
     os.makedirs(RESULTS, exist_ok=True)
     path = os.path.join(RESULTS, f"{name}.json")
