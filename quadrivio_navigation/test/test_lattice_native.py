@@ -121,10 +121,13 @@ def test_native_search_is_much_faster():
     took = []
     for planner in (nat, py):
         search(planner, s, g)  # build (primitives, heuristic graph, the native tables)
-        t = time.perf_counter()
-        r = search(planner, s, g)
-        took.append(time.perf_counter() - t)
-        assert r.expansions == 20000 or r.ok
+        best = math.inf
+        for _ in range(3):  # the fastest of three: make test runs beside other tests, which preempt either
+            t = time.perf_counter()
+            r = search(planner, s, g)
+            best = min(best, time.perf_counter() - t)
+            assert r.expansions == 20000 or r.ok
+        took.append(best)
     assert took[0] * 5 < took[1], took
 
 
