@@ -231,27 +231,36 @@ class MotionTracker:
                 self._predict(xy, a, b, 0.0, 0.0, 0.0, out_xy, out_v)
         tracks.sort(key=lambda k: k.ident)
         self.tracks = tracks[-p.max_tracks:]
-        self.prediction = Prediction(np.array(out_xy, dtype=float).reshape(-1, 2), np.array(out_v, dtype=float),
-                                     moving)
+        self.prediction = Prediction(np.concatenate(out_xy) if out_xy else np.zeros((0, 2)),
+                                     np.concatenate(out_v) if out_v else np.zeros(0), moving)
         return self.prediction
 
     def _predict(self, xy, a, b, ux, uy, speed, out_xy, out_v) -> None:
         """The cluster's points a..b-1 (at most max_points, evenly picked) moved by (ux, uy)
         [m/s, base_link] for 1..J steps over the horizon (standing: J = 0, the points as they
-        are), each with its four copies ``clearance`` away."""
+        are), each with its four copies ``clearance`` away. Appends arrays (points x 2, and
+        their speeds) to ``out_xy`` and ``out_v``: step by step, point by point, a point
+        before its copies (the order and the arithmetic of the C++ guard's loops)."""
         p = self.p
         n = b - a
         k = min(n, p.max_points)
         idx = [a + (i * (n - 1)) // (k - 1) for i in range(k)] if k > 1 else [a]
         steps = max(1, int(math.ceil(speed * p.horizon / p.step))) if speed > 0.0 else 0
         cl = p.clearance
-        for j in range(steps + 1):  # j = 0: where it is now (the scan holds the point itself)
-            tau = p.horizon * j / steps if steps else 0.0
-            for i in idx:
-                x, y = float(xy[i, 0]) + ux * tau, float(xy[i, 1]) + uy * tau
-                if j > 0:
-                    out_xy.append((x, y))
-                    out_v.append(speed)
-                if cl > 0.0:
-                    out_xy += [(x + cl, y), (x - cl, y), (x, y + cl), (x, y - cl)]
-                    out_v += [speed] * 4
+
+        def points(x, y, itself: bool) -> np.ndarray:  # x, y: (..., k) -> (..., k, point and copies, 2)
+            cols = ([(x, y)] if itself else []) + ([(x + cl, y), (x - cl, y), (x, y + cl), (x, y - cl)]
+                                                   if cl > 0.0 else [])
+            if not cols:
+                return np.zeros((0, 2))
+            return np.stack([np.stack((cx, cy), axis=-1) for cx, cy in cols], axis=-2).reshape(-1, 2)
+
+        px, py = xy[idx, 0].astype(float), xy[idx, 1].astype(float)
+        blocks = [points(px + ux * 0.0, py + uy * 0.0, False)]  # j = 0: where it is now (the scan holds the point)
+        if steps:
+            tau = np.array([p.horizon * j / steps for j in range(1, steps + 1)])[:, None]
+            blocks.append(points(px[None, :] + ux * tau, py[None, :] + uy * tau, True))
+        pts = np.concatenate(blocks)
+        if len(pts):
+            out_xy.append(pts)
+            out_v.append(np.full(len(pts), float(speed)))
