@@ -461,3 +461,26 @@ def test_a_stranger_address_holds_only_a_few_slots(plc):
             link.close()
     finally:
         attacker.close()
+
+
+def test_a_wakeup_ends_the_servers_poll_at_once():
+    # lockstep sleeps in the PLC port's poll while it waits for the members' reports:
+    # a report must end the sleep, however long it was asked to be
+    ctl = LowLevelControl(load_actuators(package_file("config", "actuators.yaml")), load_vehicle(), 0.01)
+    server = PlcServer(PlcLogic(PlcParams(), ctl), "127.0.0.1", 0, lambda: 0.0, lambda lvl, txt: None, key=KEY)
+    try:
+        t0 = time.monotonic()
+        server.poll(0.05)  # nothing: sleeps the whole time
+        assert time.monotonic() - t0 >= 0.04
+        threading.Timer(0.05, server.wakeup).start()
+        t0 = time.monotonic()
+        server.poll(30.0)
+        assert time.monotonic() - t0 < 10.0
+        for _ in range(3):  # many wake-ups before a poll: one poll takes them all, the next sleeps again
+            server.wakeup()
+        server.poll(1.0)
+        t0 = time.monotonic()
+        server.poll(0.05)
+        assert time.monotonic() - t0 >= 0.04
+    finally:
+        server.close()

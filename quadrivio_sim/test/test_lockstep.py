@@ -113,3 +113,25 @@ def test_a_python_publisher_must_name_every_member_subscriber_and_the_clock_reac
         "/simulator -> /clock (not yet to /rollover)", "/imu -> /imu/data (not yet to /rollover)"]
     c.on_report(report("/imu", seq=1, pubs={"/imu/data": ["/loc", "/record_1", "/rollover"]}))
     assert c.not_connected({"/clock": ["/imu", "/loc", "/rollover"]}, plc_session=True) == []
+
+
+def test_an_ack_alone_names_no_one_its_next_round_waits_for_it():
+    # The client handles ACK frames on arrival; the round that would only wait for one is
+    # left out. The watermark still counts them, so the client's next round waits for them.
+    c = Coordinator(["/plc_client"], "/simulator")
+    c.on_report(report("/plc_client", subs={STATE_TOPIC: 1, ACK_TOPIC: 1, "/cmd/guarded": 1}))
+    c.sent_round(["/plc_client"], c.watermark({}, (0, 0)))
+    wm = c.watermark({}, (0, 2))
+    assert c.needing(wm) == [] and wm[ACK_TOPIC] == {PLC: 2}
+    wm = c.watermark({}, (1, 2))  # a STATE frame: a round, whose watermark holds both ACKs
+    assert c.needing(wm) == ["/plc_client"] and wm[ACK_TOPIC] == {PLC: 2}
+
+
+def test_only_members_that_only_the_simulator_feeds_run_their_timers_in_the_first_round():
+    c = Coordinator(["/adapters", "/loc", "/plc_client", "/map_server", "/selfish"], "/simulator")
+    c.on_report(report("/adapters", subs={"/sim/imu": 1, "/sim/gps": 1}, pubs={"/imu/data": 2, "/gps/fix": 1}))
+    c.on_report(report("/loc", subs={"/imu/data": 1, "/gps/fix": 1}, pubs={"/odom": 1}))
+    c.on_report(report("/plc_client", subs={STATE_TOPIC: 1, ACK_TOPIC: 1}))  # PLC frames come in rounds
+    c.on_report(report("/map_server", subs={}, pubs={"/map": 1}))  # no input at all
+    c.on_report(report("/selfish", subs={"/odom": 1, "/sim/imu": 1}))  # one input a member publishes
+    assert c.fed_by_the_simulator_alone() == ["/adapters", "/map_server"]

@@ -120,16 +120,32 @@ class Coordinator:
         return wm
 
     def needing(self, wm: Watermark) -> List[str]:
-        """Members that subscribe to something published beyond what they last handled."""
+        """Members that subscribe to something published beyond what they last handled.
+        ACK frames do not name the client: it handles them on arrival, and its next round
+        (whose watermark counts them) waits for them before it handles anything."""
         out = []
         for node in self.members:
             r = self.reports.get(node, {})
             told = self.told[node]
             for t in r.get("subs", {}):
+                if t == ACK_TOPIC:
+                    continue
                 if any(n > told.get(t, {}).get(p, 0) for p, n in wm.get(t, {}).items() if p != node):
                     out.append(node)
                     break
         return out
+
+    def fed_by_the_simulator_alone(self) -> List[str]:
+        """Members whose every subscription only the simulator publishes (no member, no
+        PLC frame): the sensor adapters. Everything they get in a tick was published
+        before its first round, so their timers due in it can run in that round, after its
+        messages, with the same inputs as in the tick's timer round, one round earlier."""
+        published_by_members = set()
+        for r in self.reports.values():
+            published_by_members.update(r.get("pubs", {}))
+        return [n for n in self.members
+                if n in self.reports and not any(t in published_by_members or t in (STATE_TOPIC, ACK_TOPIC)
+                                                 for t in self.reports[n].get("subs", {}))]
 
     def timers_due(self, t_ns: int) -> List[str]:
         return [n for n in self.members

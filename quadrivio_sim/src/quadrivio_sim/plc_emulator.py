@@ -363,6 +363,11 @@ class PlcServer:
         self.listener.setblocking(False)
         self.address: Tuple[str, int] = self.listener.getsockname()
         self.sel.register(self.listener, selectors.EVENT_READ, None)
+        # wakeup() ends a poll from another thread (lockstep waits for reports and frames at once)
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_r.setblocking(False)
+        self._wake_w.setblocking(False)
+        self.sel.register(self._wake_r, selectors.EVENT_READ, _WAKE)
         self.session: Optional[_Conn] = None
         self.pending: Dict[socket.socket, _Conn] = {}
         self.listening = True  # the listener is polled (not while every pending slot is within its grace)
@@ -401,9 +406,24 @@ class PlcServer:
         for key, _ in self.sel.select(timeout=max(0.0, timeout)):
             if key.data is None:
                 self._accept()
+            elif key.data is _WAKE:
+                try:
+                    while self._wake_r.recv(4096):
+                        pass
+                except (BlockingIOError, InterruptedError):
+                    pass
             else:
                 self._read(key.data)
         self._expire()
+
+    def wakeup(self) -> None:
+        """End the current or next :meth:`poll` early (thread-safe)."""
+        try:
+            self._wake_w.send(b"w")
+        except (BlockingIOError, InterruptedError):  # the pipe is full: a wake-up is pending anyway
+            pass
+        except OSError:  # closed
+            pass
 
     def _expire(self) -> None:
         s = self.session
@@ -607,7 +627,13 @@ class PlcServer:
         if self.listening:
             self.sel.unregister(self.listener)
         self.listener.close()
+        self.sel.unregister(self._wake_r)
+        self._wake_r.close()
+        self._wake_w.close()
         self.sel.close()
+
+
+_WAKE = object()  # the selector key's data of the wake-up socket
 
 
 def listening_exposure(address: str) -> str:

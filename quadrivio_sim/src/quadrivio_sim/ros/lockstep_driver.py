@@ -23,6 +23,7 @@ from ..plc_emulator import PlcServer
 
 QUIET = 0.5  # [s wall] the members' counts must hold still this long before arming
 WARN_EVERY = 10.0  # [s wall] a round or the start-up still waiting says so this often
+WAIT_SLICE = 0.05  # [s wall] the longest sleep of a round's wait between checks (stop, warnings)
 GIVE_UP = 60.0  # [s wall] a member silent this long in a round leaves the lockstep (named)
 
 
@@ -44,6 +45,7 @@ class LockstepDriver:
         self.steps = 0
         self.left: List[str] = []  # members that stopped answering
         self.errors = 0  # rounds a member ended without a message it waited for
+        self.early: set = set()  # members whose timers run in a tick's first round (set when armed)
 
     def _members(self) -> List[str]:
         # From the master itself: rospy.get_param("/") answers from its parameter cache,
@@ -78,6 +80,7 @@ class LockstepDriver:
         with self.cond:
             self.coord.on_report(r)
             self.cond.notify_all()
+        self.server.wakeup()  # the round's wait sleeps in the PLC port's poll
 
     # -------------------------------------------------------------- PLC
     def _plc_counts(self):
@@ -129,6 +132,7 @@ class LockstepDriver:
         else:
             return False
         with self.cond:
+            self.early = set(self.coord.fed_by_the_simulator_alone())
             self.base_sent = dict(self.sent)
             self.plc_base = self._plc_counts()
             self.seq += 1
@@ -136,8 +140,9 @@ class LockstepDriver:
         self._send(self.coord.members, {"seq": seq, "arm": True})
         if not self._wait(self.coord.members, seq):
             return False
-        rospy.loginfo("lockstep: armed after %.1f s with %d members: %s", time.monotonic() - t0,
-                      len(self.coord.members), " ".join(self.coord.members) or "(none)")
+        rospy.loginfo("lockstep: armed after %.1f s with %d members: %s; timers in a tick's first round: %s",
+                      time.monotonic() - t0, len(self.coord.members), " ".join(self.coord.members) or "(none)",
+                      " ".join(sorted(self.early)) or "(none)")
         # Every member has advertised what it publishes: a recorder started now can connect to
         # all of it before the first step (experiment waits for this)
         rospy.set_param(ARMED_PARAM, True)
@@ -156,9 +161,10 @@ class LockstepDriver:
                         self.errors += 1
                         rospy.logerr("lockstep: %s: %s", node, err)
                 return True
-            self._serve(0.0)
-            with self.cond:
-                self.cond.wait(0.0003)
+            # Sleep until a report (wakeup()) or a PLC frame arrives: no polling, the CPU
+            # goes to the members. A report between the check above and this poll has
+            # already written its wake-up, so the poll returns at once.
+            self._serve(WAIT_SLICE)
             now = time.monotonic()
             if now - last_warn >= WARN_EVERY:
                 last_warn = now
@@ -177,21 +183,31 @@ class LockstepDriver:
         """Rounds after the step that reached sim time ``t``, until the loop is quiet."""
         t_ns = rospy.Time.from_sec(t).to_nsec()
         timers_done = False
+        first = True
         self.steps += 1
         while not self.stop():
             with self.cond:
                 own = {k: v - self.base_sent.get(k, 0) for k, v in self.sent.items()}
                 wm = self.coord.watermark(own, self._plc_sent())
                 to = self.coord.needing(wm)
+                early: List[str] = []
+                if first:  # the adapters' timers with their messages (fed_by_the_simulator_alone)
+                    early = [n for n in self.coord.timers_due(t_ns) if n in self.early]
+                    to = [n for n in to if n not in early]
                 timers = False
-                if not to and not timers_done:
+                if not to and not early and not timers_done:
                     timers_done, to, timers = True, self.coord.timers_due(t_ns), True
-                if not to:
+                if not to and not early:
                     return
-                self.coord.sent_round(to, wm)
+                self.coord.sent_round(to + early, wm)
                 self.seq += 1
                 seq = self.seq
+            first = False
             self.rounds += 1
-            self._send(to, {"seq": seq, "t": t_ns, "timers": timers, "wm": wm})
-            self._wait(to, seq)
+            cmd = {"seq": seq, "t": t_ns, "timers": timers, "wm": wm}
+            if to:
+                self._send(to, cmd)
+            if early:
+                self._send(early, dict(cmd, timers=True))
+            self._wait(sorted(to + early), seq)
 
