@@ -15,6 +15,7 @@ from typing import Dict, Iterable, List, Optional, Tuple
 from quadrivio_runtime.lockstep_wire import ACK_TOPIC, PLC, STATE_TOPIC
 
 Watermark = Dict[str, Dict[str, int]]
+_NONE: Dict[str, int] = {}
 
 
 class Coordinator:
@@ -125,15 +126,24 @@ class Coordinator:
         (whose watermark counts them) waits for them before it handles anything."""
         out = []
         for node in self.members:
-            r = self.reports.get(node, {})
             told = self.told[node]
-            for t in r.get("subs", {}):
-                if t == ACK_TOPIC:
+            if told is wm:  # told this very watermark: nothing new
+                continue
+            for t in self.reports.get(node, {}).get("subs", ()):
+                now = wm.get(t)
+                if not now or t == ACK_TOPIC:
                     continue
-                if any(n > told.get(t, {}).get(p, 0) for p, n in wm.get(t, {}).items() if p != node):
+                before = told.get(t, _NONE)
+                if now is not before and any(n > before.get(p, 0) for p, n in now.items() if p != node):
                     out.append(node)
                     break
         return out
+
+    def watermark_for(self, node: str, wm: Watermark) -> Watermark:
+        """The part of ``wm`` that ``node`` subscribes to (what its round waits for and
+        hands over): the command carries no more than the member reads."""
+        subs = self.reports.get(node, {}).get("subs", ())
+        return {t: wm[t] for t in subs if t in wm}
 
     def fed_by_the_simulator_alone(self) -> List[str]:
         """Members whose every subscription only the simulator publishes (no member, no
@@ -152,8 +162,9 @@ class Coordinator:
                 if self.reports.get(n, {}).get("next_timer") is not None and self.reports[n]["next_timer"] <= t_ns]
 
     def sent_round(self, nodes: Iterable[str], wm: Watermark) -> None:
+        # shared, not copied: a watermark is made for its round and never changed after
         for n in nodes:
-            self.told[n] = {t: dict(p) for t, p in wm.items()}
+            self.told[n] = wm
 
     def link_sent(self) -> Optional[int]:
         """Frames the PLC client says it sent since arming (None: no client among the members)."""

@@ -67,6 +67,13 @@ class LockstepDriver:
         for node in nodes:
             self._command_pub(node).publish(data)
 
+    def _send_round(self, nodes: List[str], cmd: dict, wm) -> None:
+        """A round's command to each of ``nodes``, with the part of the watermark it reads."""
+        for node in nodes:
+            with self.cond:
+                own = self.coord.watermark_for(node, wm)
+            self._command_pub(node).publish(String(data=json.dumps(dict(cmd, wm=own), separators=(",", ":"))))
+
     def _count(self, topic: str) -> None:
         with self.cond:
             self.sent[topic] += 1
@@ -204,10 +211,10 @@ class LockstepDriver:
                 seq = self.seq
             first = False
             self.rounds += 1
-            cmd = {"seq": seq, "t": t_ns, "timers": timers, "wm": wm}
+            cmd = {"seq": seq, "t": t_ns, "timers": timers}
             if to:
-                self._send(to, cmd)
+                self._send_round(to, cmd, wm)
             if early:
-                self._send(early, dict(cmd, timers=True))
+                self._send_round(early, dict(cmd, timers=True), wm)
             self._wait(sorted(to + early), seq)
 
