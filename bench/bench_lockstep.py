@@ -10,7 +10,10 @@ The paper's figure eight (scenarios/figure_eight.yaml, its seed), the whole stac
   stops the run when it sees the follower done, on the wall clock, so the runs end a few
   ticks apart);
 * lockstep at factor 1: the same bag again (``lockstep_same_at_rtf1``): what a run does
-  in lockstep does not depend on how fast it went.
+  in lockstep does not depend on how fast it went;
+* ``lockstep_cpu_s_per_sim_s``: the whole stack's CPU per simulated second in lockstep, and
+  ``lockstep_cpu_limit_rtf``, the cores over it: the factor the loop could reach on this
+  machine were it never waiting for a message (lockstep_rtf over it: how much it waits).
 
 Tracking and localization of each run are recorded next to the free-running ones, and
 ``stack_rtf`` from bench/results/stack.json when bench_stack ran (free-running, the
@@ -28,7 +31,8 @@ sys.path.insert(0, HERE)
 from common import RESULTS, experiment, machine, write_result  # noqa: E402
 
 SCENARIO = "figure_eight"
-KEYS = ("completed", "rtf", "sim_duration_s", "xte_rmse_m", "xte_max_m", "loc_rmse_m", "pred_rmse_m")
+KEYS = ("completed", "rtf", "sim_duration_s", "xte_rmse_m", "xte_max_m", "loc_rmse_m", "pred_rmse_m",
+        "stack_cpu_s_per_sim_s", "stack_efficiency")
 
 
 def run(name: str, rtf: float, lockstep: bool) -> dict:
@@ -59,6 +63,12 @@ def main():
               "lockstep_rtf": min(a.get("rtf") or 0.0, b.get("rtf") or 0.0),
               "lockstep_repeats": 1.0 if ok and same(a, b) else 0.0,
               "lockstep_same_at_rtf1": 1.0 if ok and f1.get("completed") and same(a, f1) else 0.0}
+    # Read against its limit: the cores over the CPU the stack spends per simulated second
+    # in lockstep (the factor it could reach were the loop never waiting on a message)
+    cpu = [m.get("stack_cpu_s_per_sim_s") for m in (a, b) if m.get("stack_cpu_s_per_sim_s")]
+    if cpu:
+        result["lockstep_cpu_s_per_sim_s"] = min(cpu)
+        result["lockstep_cpu_limit_rtf"] = (os.cpu_count() or 1) / min(cpu)
     stack = os.path.join(RESULTS, "stack.json")
     if os.path.isfile(stack):
         with open(stack) as fh:

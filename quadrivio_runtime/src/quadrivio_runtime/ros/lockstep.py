@@ -33,7 +33,8 @@ topics with, then *arms* the members: the counts start from there.
 
 Wire format (``std_msgs/String``, JSON): a command on ``/lockstep/command<node>`` (one
 topic per member: a round wakes only the members it names) ``{"seq", "t" (ns), "timers",
-"wm": {topic: {publisher: n}}}`` or ``{"seq", "arm": true}``; a report ``{"node", "seq",
+"wm": {topic: {publisher: n}}}`` (the topics the member subscribes to) or ``{"seq", "arm":
+true}``; a report ``{"node", "seq",
 "clock" (ns), "armed", "sent": {topic: n}, "next_timer" (ns or null), "error", "link":
 {"sent"} (the PLC client)}``, plus, until armed, ``"subs": {topic: publishers connected}``
 and ``"pubs": {topic: subscribers connected}``.
