@@ -28,7 +28,9 @@ in this process, one update per scan).
 ``--seeds N`` (default 10), ``--speeds 2,3``, ``--only a,b``, ``--runner in_process|ros``,
 ``--workers`` (in process, default 2), ``--rtf`` (``--runner ros``, default 2), ``--guard
 guard`` (ROS runs: the Python reference guard; default guard_cpp), ``--latency-seeds N``
-(ROS runs at factor 1 of dog_runs_out and orchard_crossing at each speed, default 2).
+(ROS runs at factor 1 of dog_runs_out and orchard_crossing at each speed, default 2). A run
+with fewer (``--only``, ``--seeds`` under 10, other speeds, ``--latency-seeds`` under 2)
+writes bench/results/obstacles_partial.json and .md: the full run's figures stay.
 """
 import argparse
 import json
@@ -323,8 +325,18 @@ def main() -> None:
             result["local_layer_update_p99_ms"] = float(np.percentile(times, 99))
             result["local_layer_update_p50_ms"] = float(np.percentile(times, 50))
             result["local_layer_updates"] = len(times)
-    write_result("obstacles", result)
-    with open(os.path.join(RESULTS, "obstacles.md"), "w") as fh:
+    # A partial run (some scenarios, fewer seeds or other speeds) must not stand in for the
+    # benchmark's figures: it writes obstacles_partial.json beside them
+    partial = bool(args.only) or args.seeds < 10 or sorted(speeds) != [2.0, 3.0] or args.latency_seeds < 2
+    name = "obstacles_partial" if partial else "obstacles"
+    if partial:
+        result["partial"] = {"only": args.only, "seeds": args.seeds, "speeds": speeds,
+                             "latency_seeds": args.latency_seeds}
+        print("[bench obstacles] a partial run (--only, --seeds < 10, --speeds other than 2,3 or "
+              "--latency-seeds < 2): its figures go to obstacles_partial.json, not obstacles.json", flush=True)
+    write_result(name, result)
+    table = os.path.join(RESULTS, f"{name}.md")
+    with open(table + ".tmp", "w") as fh:
         fh.write("| scenario | runs | completed | collisions | min clearance [m] | protective stops | false | "
                  "anticipated | fail-safe | blocked mean [s] |\n|---|---|---|---|---|---|---|---|---|---|\n")
         for key, row in result["per_scenario"].items():
@@ -332,6 +344,7 @@ def main() -> None:
             fh.write(f"| {key} | {row['runs']} | {row['completed']:.2f} | {row['collisions']} | "
                      f"{'' if mc is None else f'{mc:.2f}'} | {row['protective_stops']} | {row['false_stops']} | "
                      f"{row['anticipated_stops']} | {row['fault_stops']} | {row['time_blocked_s_mean']:.1f} |\n")
+    os.replace(table + ".tmp", table)  # never a half-written table
 
 
 if __name__ == "__main__":
