@@ -293,3 +293,20 @@ def test_wheel_speed_noise_is_no_lock():
         loc.add_vehicle_state(0.01 * i, 2.0 + rng.normal(0.0, 0.1), 0.0)
     assert not any(loc._wheel_locked(t0, t0 + 0.05) for t0 in np.arange(0.0, 59.9, 0.05))
     assert not loc.pop_events()
+
+
+def test_calibration_every_few_keyframes_estimates_as_one_per_keyframe():
+    """One calibration state every 5 keyframes (the default) against one per keyframe, on the
+    same readings with the same calibration errors: the same track and calibration within
+    what the drift makes of them, with fewer variables in the window."""
+    kw = dict(seconds=60.0, speed_scale=1.05, handlebar_offset=0.03, gyro_bias=0.005)
+    every = {n: run(params=dataclasses.replace(LocalizerParams(), calibration_every=n), **kw) for n in (1, 5)}
+    (e1, loc1, est1), (e5, loc5, est5) = every[1], every[5]
+    assert loc5.p.calibration_every == 5 and loc1.p.calibration_every == 1
+    settled1, settled5 = e1[e1[:, 0] > 30.0], e5[e5[:, 0] > 30.0]
+    assert abs(rmse(settled5[:, 1]) - rmse(settled1[:, 1])) < 0.02  # [m]
+    for name in ("wheel_speed_scale", "handlebar_offset", "gyro_bias", "mag_hard_iron_x"):
+        assert est5.calibration[name] == pytest.approx(est1.calibration[name], abs=0.01 * max(1.0, abs(est1.calibration[name])))
+    # B, K, M every 5th keyframe: 2 + 3/5 variables a keyframe instead of 5
+    n1, n5 = len(loc1.smoother.stamps), len(loc5.smoother.stamps)
+    assert n5 < 0.65 * n1, (n5, n1)

@@ -116,6 +116,10 @@ class LocalizerParams:
                                         "stopped at no_odometry_accel (0: never)")
     mag_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="magnetometer factors per second (readings averaged)")
     calibrate: bool = param(True, doc="estimate the calibration online (false: hold the priors' means)")
+    calibration_every: int = param(5, lo=1, hi=100,
+                                   doc="keyframes per calibration state (gyro bias, odometry, magnetometer): they "
+                                       "drift over minutes, so one state every few keyframes holds them as well "
+                                       "with fewer variables in the window; the keyframes between use the last one")
     initial_heading_sigma: float = param(3.0, lo=1e-3, hi=4.0, unit="rad",
                                          doc="prior on the first heading (weak: the magnetometer factors and their "
                                              "calibration priors already say how well north is known)")

@@ -168,6 +168,7 @@ class Localizer:
         self.z: Optional[float] = None
         self.z_t: Optional[float] = None
         self.k: Optional[int] = None  # newest keyframe index
+        self.k_origin = 0  # the first keyframe's (set by _initialize)
         self.oldest_k: Optional[int] = None
         self.smoother: Optional[FixedLagWindow] = None
         self.result = gtsam.Values()
@@ -259,6 +260,11 @@ class Localizer:
         ok_gyro = not self.p.use_gyro or (self.gyro and self.gyro.last_t >= t1 - 1e-9)
         return bool(ok_states and ok_gyro)
 
+    def _c(self, k: int) -> int:
+        """The keyframe of the calibration state that keyframe ``k`` uses (the last at or before it)."""
+        n = self.p.calibration_every
+        return k if n == 1 else self.k_origin + n * ((k - self.k_origin) // n)
+
     def _vector(self, key: int, values: gtsam.Values) -> np.ndarray:
         return values.atVector(key) if values.exists(key) else self.result.atVector(key)
 
@@ -281,6 +287,7 @@ class Localizer:
             kin_sigma, mag_sigma = kin_sigma * 1e-3, mag_sigma * 1e-3
         self.held = (kin_mean, kin_sigma, mag_mean, mag_sigma)
         self.k = self.oldest_k = int(math.ceil(t_gps / self.dt - 1e-9))
+        self.k_origin = self.k  # calibration states at k_origin + n * calibration_every
         m_avg = None
         if self.p.use_mag:
             # The readings so far (up to half a mag slot back) make the first keyframe's factor
@@ -379,7 +386,8 @@ class Localizer:
         t0, t1 = self._t(k0), self._t(k1)
         nz = self.p.noise
         prev = self._pose(k0, values)
-        prev_b, kin, mag = self._vector(B(k0), values), self._vector(K(k0), values), self._vector(M(k0), values)
+        c0 = self._c(k0)  # the calibration state these intervals use
+        prev_b, kin, mag = self._vector(B(c0), values), self._vector(K(c0), values), self._vector(M(c0), values)
         drift = self._vector(G(k0), values)
         samples = self._samples(t0, t1) if self.p.use_odometry else []
         dth_gyro = self._gyro_integral(t0, t1) if self.p.use_gyro else None
@@ -403,7 +411,7 @@ class Localizer:
             sxy = math.hypot(nz.odometry_xy, nz.odometry_xy_per_m * dist)
             sth = math.hypot(nz.odometry_theta, nz.odometry_theta_per_m * dist)
             graph.add(factors.odometry_factor(gtsam.noiseModel.Diagonal.Sigmas(np.array([sxy, sxy, sth])), X(k0), X(k1),
-                                        K(k0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio,
+                                        K(c0), span, speed, handlebar, self.v.wheelbase, self.v.steering.ratio,
                                         self.max_delta))
             guess = prev.compose(gtsam.Pose2(dx, dy, dth))
             self.latest_speed = kin[0] * samples[-1][1]
@@ -433,17 +441,23 @@ class Localizer:
                 guess = prev.compose(before.between(prev))
         if dth_gyro is not None:
             graph.add(factors.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
-                                    X(k0), X(k1), B(k0), dth_gyro, self.dt))
+                                    X(k0), X(k1), B(c0), dth_gyro, self.dt))
             self.latest_rate = dth_gyro / self.dt - float(prev_b[0])
         else:
             self.counters.intervals_without_gyro += 1
+        n = self.p.calibration_every
+        calibration_state = self._c(k1) == k1  # a new calibration state at k1, walked from c0's
         for key, value, sigmas in ((B, prev_b, [nz.gyro_bias_walk * math.sqrt(self.dt)]), (K, kin, self.kin_walk),
                                    (M, mag, self.mag_walk), (G, drift, self.gps_walk)):
+            if key is not G and not calibration_state:
+                continue
+            if key is not G and n > 1:  # the walk over n keyframes
+                sigmas = np.asarray(sigmas, float) * math.sqrt(n)
             if key is G:
                 graph.add(factors.gauss_markov_factor(gtsam.noiseModel.Diagonal.Sigmas(sigmas), G(k0), G(k1), self.gps_phi))
                 value = self.gps_phi * value
             elif key is B or self.p.calibrate:
-                graph.add(gtsam.BetweenFactorVector(key(k0), key(k1), np.zeros(len(value)),
+                graph.add(gtsam.BetweenFactorVector(key(c0), key(k1), np.zeros(len(value)),
                                                     gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))))
             else:  # held: a tight prior on each copy (a chain of tight walks would be ill-conditioned)
                 mean, sigma = (self.held[0], self.held[1]) if key is K else (self.held[2], self.held[3])
@@ -705,7 +719,7 @@ class Localizer:
                 ms.append(self.mags.popleft()[1:])
             self.mag_closed = j
             k = int(round(j * period / self.dt))
-            if k < self.oldest_k or not (values.exists(M(k)) or self.result.exists(M(k))):
+            if k < self.oldest_k or not (values.exists(M(self._c(k))) or self.result.exists(M(self._c(k)))):
                 continue
             if self._at_rest((j - 0.5) * period, end):
                 # Standing still, the magnetometer sees the same field with the same error:
@@ -716,7 +730,7 @@ class Localizer:
                 self.mag_at_rest = True
             else:
                 self.mag_at_rest = False
-            graph.add(factors.mag_factor(self._mag_noise(len(ms)), X(k), M(k), np.mean(ms, axis=0), self.h_en))
+            graph.add(factors.mag_factor(self._mag_noise(len(ms)), X(k), M(self._c(k)), np.mean(ms, axis=0), self.h_en))
             self.counters.mag_used += 1
 
     def _at_rest(self, t0: float, t1: float) -> bool:
@@ -746,8 +760,9 @@ class Localizer:
         if self.k is None or not self.result.exists(X(self.k)):
             return None
         pose = self.result.atPose2(X(self.k))
-        kin, mag = self.result.atVector(K(self.k)), self.result.atVector(M(self.k))
-        bias = float(self.result.atVector(B(self.k))[0])
+        c = self._c(self.k)
+        kin, mag = self.result.atVector(K(c)), self.result.atVector(M(c))
+        bias = float(self.result.atVector(B(c))[0])
         # GTSAM's Pose2 covariance is in the body-frame tangent space: rotate to map axes.
         c, s = math.cos(pose.theta()), math.sin(pose.theta())
         Rb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -763,9 +778,10 @@ class Localizer:
         if self.smoother is None:
             return {}
         try:
-            ck = np.sqrt(np.diag(self.smoother.marginalCovariance(K(self.k))))
-            cm = np.sqrt(np.diag(self.smoother.marginalCovariance(M(self.k))))
-            cb = math.sqrt(self.smoother.marginalCovariance(B(self.k))[0, 0])
+            c = self._c(self.k)
+            ck = np.sqrt(np.diag(self.smoother.marginalCovariance(K(c))))
+            cm = np.sqrt(np.diag(self.smoother.marginalCovariance(M(c))))
+            cb = math.sqrt(self.smoother.marginalCovariance(B(c))[0, 0])
         except RuntimeError:
             return {}
         return dict(zip(CALIBRATION_NAMES, [float(ck[0]), float(ck[1]), float(ck[2]), cb] + [float(v) for v in cm]))
