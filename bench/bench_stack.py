@@ -16,17 +16,21 @@ smoother offline exactly as ``replay`` does (same order, 20 Hz updates on the ba
 clock); each update timed on the wall clock, and the CPU time of the whole replay over
 the bag's duration: the share of one core the smoother needs at 20 Hz in real time.
 
+Both record the machine's pace before and after (``pace_ms_before``/``_after``,
+bench/common.py): a figure taken at a pace of 24 ms is not one taken at 10.
+
 Writes bench/results/stack.json and bench/results/smoother.json.
 """
 import os
 import sys
 import time
 
-import numpy as np
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as launch/stack.launch runs the node (before numpy)
+import numpy as np  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, experiment, machine, write_result  # noqa: E402
+from common import RESULTS, experiment, machine, pace_ms, write_result  # noqa: E402
 
 FACTORS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
 KEYS = ("xte_rmse_m", "xte_max_m")
@@ -39,6 +43,7 @@ def run(rtf: float) -> dict:
 
 def stack_rtf() -> dict:
     runs = {}
+    pace_before = pace_ms()  # the machine's speed swings 2.4 times within an hour: say how fast it was
     ref = run(1.0)
     runs[1.0] = ref
     print(f"[bench stack] factor 1: completed {ref['completed']}, " +
@@ -66,7 +71,7 @@ def stack_rtf() -> dict:
               "criterion": "completed, xte_rmse_m and xte_max_m within 10 % of the factor-1 run, achieved factor "
                            ">= 95 % of the one asked for (stack_rtf_achieved: the highest achieved factor of a run "
                            "that kept the tracking)",
-              "machine": machine()}
+              "machine": machine(), "pace_ms_before": pace_before, "pace_ms_after": pace_ms()}
     # Speed read against its limit (issue 28): the CPU per simulated second at factor 1, and at
     # factor 5 (the architecture's contract) the achieved factor over the CPU-bound one (cores /
     # CPU s per simulated s, while sim time ran: experiment's cpu_report)
@@ -104,6 +109,7 @@ def smoother(bag_path: str) -> None:
         t_start, t_end = bag.get_start_time(), bag.get_end_time()
         msgs = list(bag.read_messages(topics=list(feed)))
     ticker = Ticker(loc, params.rate, t_start)  # replay's own schedule of updates
+    pace_before = pace_ms()
     cpu0 = time.process_time()
     for topic, msg, t in msgs:
         for _ in ticker.until(t.to_sec()):
@@ -123,7 +129,7 @@ def smoother(bag_path: str) -> None:
               "updates": len(times), "bag_seconds": duration, "keyframes": loc.counters.keyframes,
               "rate_hz": params.rate, "lag_s": params.lag,
               "scenario": f"{SCENARIO} closed loop at factor 1, its sensor topics replayed offline ({bag_path})",
-              "machine": machine()}
+              "machine": machine(), "pace_ms_before": pace_before, "pace_ms_after": pace_ms()}
     print(f"[bench smoother] update p50 {result['smoother_update_p50_ms']:.2f} ms, p99 "
           f"{result['smoother_update_p99_ms']:.2f} ms over {len(times)} updates; "
           f"{result['smoother_cpu_frac']:.3f} of a core at 20 Hz", flush=True)
