@@ -135,3 +135,17 @@ def test_only_members_that_only_the_simulator_feeds_run_their_timers_in_the_firs
     c.on_report(report("/map_server", subs={}, pubs={"/map": 1}))  # no input at all
     c.on_report(report("/selfish", subs={"/odom": 1, "/sim/imu": 1}))  # one input a member publishes
     assert c.fed_by_the_simulator_alone() == ["/adapters", "/map_server"]
+
+
+def test_a_member_that_left_is_named_no_more_and_leaving_twice_is_harmless():
+    c = Coordinator(["/adapter", "/loc"], "/simulator")
+    c.on_report(report("/adapter", subs={"/sim/imu": 1}, pubs={"/imu/data": 1}, next_timer=10))
+    c.on_report(report("/loc", subs={"/imu/data": 1}, next_timer=10))
+    c.on_report(report("/adapter", seq=1, sent={"/imu/data": 3}, subs={"/sim/imu": 1}, pubs={"/imu/data": 1},
+                       next_timer=10))
+    assert c.needing(c.watermark({"/sim/imu": 1}, (0, 0))) == ["/adapter", "/loc"]
+    c.leave(["/loc"])
+    c.leave(["/loc"])
+    wm = c.watermark({"/sim/imu": 1}, (0, 0))
+    assert c.needing(wm) == ["/adapter"] and c.timers_due(10) == ["/adapter"]
+    assert wm["/imu/data"] == {"/adapter": 3}  # what was published still counts

@@ -54,6 +54,12 @@ class Coordinator:
         return [(n, self.reports[n]["error"]) for n in nodes
                 if self.reports.get(n, {}).get("seq") == seq and self.reports[n].get("error")]
 
+    def leave(self, nodes: Iterable[str]) -> None:
+        """Members that stopped answering leave the lockstep: no round names them again
+        (what they published before still counts in the watermarks). Idempotent."""
+        gone = set(nodes)
+        self.members = [m for m in self.members if m not in gone]
+
     # ----------------------------------------------------------- start-up
     def missing(self) -> List[str]:
         return [m for m in self.members if m not in self.reports]

@@ -10,7 +10,7 @@ import threading
 import time
 import warnings
 from collections import defaultdict
-from typing import Callable, Dict, List
+from typing import Callable, Dict, List, Optional, Tuple
 
 import rospy
 from std_msgs.msg import String
@@ -46,6 +46,7 @@ class LockstepDriver:
         self.left: List[str] = []  # members that stopped answering
         self.errors = 0  # rounds a member ended without a message it waited for
         self.early: set = set()  # members whose timers run in a tick's first round (set when armed)
+        self.waiting: Optional[Tuple[List[str], int]] = None  # the round being waited for: (members, seq)
 
     def _members(self) -> List[str]:
         # From the master itself: rospy.get_param("/") answers from its parameter cache,
@@ -87,7 +88,10 @@ class LockstepDriver:
         with self.cond:
             self.coord.on_report(r)
             self.cond.notify_all()
-        self.server.wakeup()  # the round's wait sleeps in the PLC port's poll
+            # the round's wait sleeps in the PLC port's poll: wake it once its last report is in
+            last = self.waiting is not None and not self.coord.pending(*self.waiting)
+        if last:
+            self.server.wakeup()
 
     # -------------------------------------------------------------- PLC
     def _plc_counts(self):
@@ -157,6 +161,15 @@ class LockstepDriver:
 
     # ------------------------------------------------------------ rounds
     def _wait(self, nodes: List[str], seq: int) -> bool:
+        with self.cond:
+            self.waiting = (list(nodes), seq)
+        try:
+            return self._wait_for(nodes, seq)
+        finally:
+            with self.cond:
+                self.waiting = None
+
+    def _wait_for(self, nodes: List[str], seq: int) -> bool:
         t0 = last_warn = time.monotonic()
         while not self.stop():
             with self.cond:
@@ -179,9 +192,12 @@ class LockstepDriver:
                               " ".join(pending) if pending else f"PLC frames ({self._plc_received()} of {link})")
             if pending and now - t0 >= GIVE_UP:
                 with self.cond:
-                    for node in pending:
-                        self.coord.members.remove(node)
-                        self.left.append(node)
+                    self.coord.leave(pending)
+                    self.left.extend(pending)
+                    # the round goes on with the others (it waited for the gone ones forever,
+                    # and removed them again, which raised, before)
+                    nodes = [n for n in nodes if n not in pending]
+                    self.waiting = (nodes, seq)
                 rospy.logerr("lockstep: %s did not answer round %d for %.0f s and leave the lockstep: this run "
                              "will not repeat exactly", " ".join(pending), seq, GIVE_UP)
         return False
