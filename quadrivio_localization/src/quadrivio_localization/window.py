@@ -55,6 +55,7 @@ class FixedLagWindow:
         self.marginalized = 0  # keys marginalised so far
         self.repairs = 0  # marginalisations that had to re-order the window first
         self._merged_upto = -math.inf  # newest stamp an update left in a shared level (order not assured)
+        self._chunks: Dict[float, int] = {}  # stamp -> its chunk (levels() asks for every stamp at every update)
 
     def timestamps(self) -> Dict[int, float]:
         return dict(self.stamps)
@@ -71,7 +72,8 @@ class FixedLagWindow:
         (the update leaves them be; should it re-eliminate them after all, their order is
         not assured, which is noted for :meth:`_marginalize` to check)."""
         stamps = sorted(set(self.stamps.values()))
-        chunks = [self._chunk(t) for t in stamps]
+        cache = self._chunks
+        chunks = [cache[t] if t in cache else cache.setdefault(t, self._chunk(t)) for t in stamps]
         distinct = sorted(set(chunks))
         rc = self._chunk(reach)
         in_range = [c for c in distinct if c >= rc]
@@ -120,7 +122,9 @@ class FixedLagWindow:
         groups = gtsam.KeyGroupMap()
         hold = gtsam.KeyList()
         for k, t in self.stamps.items():
-            groups.insert2(k, level[t])
+            lv = level[t]
+            if lv:  # GTSAM's CCOLAMD puts a key without a group in group 0: the same order, fewer calls
+                groups.insert2(k, lv)
             if t < held:
                 hold.push_back(k)
         self.last_result = self.isam.update(graph, values, [], groups, hold)
@@ -153,6 +157,8 @@ class FixedLagWindow:
         self.isam.marginalizeLeaves(keys)
         for k in old:
             del self.stamps[k]
+        held = set(self.stamps.values())
+        self._chunks = {t: c for t, c in self._chunks.items() if t in held}
         self.marginalized += len(old)
 
     def _removable(self, old: List[int]) -> bool:
