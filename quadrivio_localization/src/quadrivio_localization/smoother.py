@@ -719,7 +719,10 @@ class Localizer:
                 ms.append(self.mags.popleft()[1:])
             self.mag_closed = j
             k = int(round(j * period / self.dt))
-            if k < self.oldest_k or not (values.exists(M(self._c(k))) or self.result.exists(M(self._c(k)))):
+            if k < self.oldest_k:
+                continue
+            mk = M(self._c(k))  # the calibration state keyframe k uses
+            if not (values.exists(mk) or self.result.exists(mk)):
                 continue
             if self._at_rest((j - 0.5) * period, end):
                 # Standing still, the magnetometer sees the same field with the same error:
@@ -730,7 +733,7 @@ class Localizer:
                 self.mag_at_rest = True
             else:
                 self.mag_at_rest = False
-            graph.add(factors.mag_factor(self._mag_noise(len(ms)), X(k), M(self._c(k)), np.mean(ms, axis=0), self.h_en))
+            graph.add(factors.mag_factor(self._mag_noise(len(ms)), X(k), mk, np.mean(ms, axis=0), self.h_en))
             self.counters.mag_used += 1
 
     def _at_rest(self, t0: float, t1: float) -> bool:
@@ -760,9 +763,9 @@ class Localizer:
         if self.k is None or not self.result.exists(X(self.k)):
             return None
         pose = self.result.atPose2(X(self.k))
-        c = self._c(self.k)
-        kin, mag = self.result.atVector(K(c)), self.result.atVector(M(c))
-        bias = float(self.result.atVector(B(c))[0])
+        ck = self._c(self.k)
+        kin, mag = self.result.atVector(K(ck)), self.result.atVector(M(ck))
+        bias = float(self.result.atVector(B(ck))[0])
         # GTSAM's Pose2 covariance is in the body-frame tangent space: rotate to map axes.
         c, s = math.cos(pose.theta()), math.sin(pose.theta())
         Rb = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

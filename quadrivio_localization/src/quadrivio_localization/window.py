@@ -157,8 +157,8 @@ class FixedLagWindow:
         self.isam.marginalizeLeaves(keys)
         for k in old:
             del self.stamps[k]
-        held = set(self.stamps.values())
-        self._chunks = {t: c for t, c in self._chunks.items() if t in held}
+        remaining = set(self.stamps.values())
+        self._chunks = {t: c for t, c in self._chunks.items() if t in remaining}
         self.marginalized += len(old)
 
     def _removable(self, old: List[int]) -> bool:

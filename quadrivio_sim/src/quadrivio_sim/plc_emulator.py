@@ -420,9 +420,7 @@ class PlcServer:
         """End the current or next :meth:`poll` early (thread-safe)."""
         try:
             self._wake_w.send(b"w")
-        except (BlockingIOError, InterruptedError):  # the pipe is full: a wake-up is pending anyway
-            pass
-        except OSError:  # closed
+        except OSError:  # full (a wake-up is pending anyway) or closed
             pass
 
     def _expire(self) -> None:

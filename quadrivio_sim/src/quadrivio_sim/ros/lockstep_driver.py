@@ -194,8 +194,7 @@ class LockstepDriver:
                 with self.cond:
                     self.coord.leave(pending)
                     self.left.extend(pending)
-                    # the round goes on with the others (it waited for the gone ones forever,
-                    # and removed them again, which raised, before)
+                    # the round goes on with the others
                     nodes = [n for n in nodes if n not in pending]
                     self.waiting = (nodes, seq)
                 rospy.logerr("lockstep: %s did not answer round %d for %.0f s and leave the lockstep: this run "
