@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from quadrivio_localization.gps_gate import MULTIPATH, OUTLIER, GpsGate, GpsGateParams
+from quadrivio_localization.gps_gate import MULTIPATH, OUTLIER, GpsGate, GpsGateParams, eigen_range
 
 
 def settled_gate(**over):
@@ -215,3 +215,17 @@ def test_a_burst_cleared_by_a_fault_leaves_no_step_judged_until_settled():
     back = [g.decide(t + 0.4 + 0.2 * i, off * 0.5, P, R, (), (-off if i == 0 else np.zeros(2), R, R, Q))
             for i in range(5)]
     assert all(v.use for v in back) and g.burst is None
+
+
+def test_the_closed_form_eigenvalues_are_lapacks():
+    rng = np.random.default_rng(7)
+    for scale in (1e-4, 1.0, 1e3):
+        for _ in range(200):
+            a = rng.normal(size=(2, 2)) * scale
+            S = a @ a.T + np.diag(rng.uniform(0, scale, 2))
+            lo, hi = eigen_range(S)
+            ref = np.linalg.eigvalsh(S)
+            assert lo == pytest.approx(ref[0], rel=1e-9, abs=1e-12 * scale ** 2)
+            assert hi == pytest.approx(ref[1], rel=1e-9)
+    assert eigen_range(np.diag([2.0, 3.0])) == (2.0, 3.0)  # diagonal: exact
+    assert eigen_range(np.eye(2) * 0.5) == (0.5, 0.5)

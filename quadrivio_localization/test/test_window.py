@@ -131,9 +131,28 @@ def test_nonlinear_poses_with_skipping_factors_survive_marginalisation():
                 graph.add(gtsam.PriorFactorPose2(X(k - 8), truth[k - 8], fix))
         values.insert(X(k), truth[k].compose(gtsam.Pose2(*rng.normal(0, [0.05, 0.05, 0.01]))))
         w.update(graph, values, {X(k): k * DT})
+        if k % 50 == 49:  # the solution read key by key is the whole estimate's, to the bit
+            whole, solution = w.calculateEstimate(), w.solution()
+            assert sorted(whole.keys()) == sorted(w.timestamps())
+            for key in whole.keys():
+                assert solution.exists(key)
+                a, b = whole.atPose2(key), solution.atPose2(key)
+                assert (a.x(), a.y(), a.theta()) == (b.x(), b.y(), b.theta())
+            assert not solution.exists(X(0)) and not solution.exists(X(k + 1))
     est = w.calculateEstimate().atPose2(X(599))
     assert np.hypot(est.x() - truth[-1].x(), est.y() - truth[-1].y()) < 1.0
     assert len(w.timestamps()) <= (1.0 + 0.25) / DT + 1
+
+
+def test_the_solution_key_by_key_is_the_whole_estimate():
+    """Vectors too, with late factors re-solving older keys (what the smoother reads)."""
+    w = FixedLagWindow(1.0, gtsam.ISAM2Params(), chunk=0.5)
+    for k, (graph, values, stamps, _) in enumerate(_stream(120, seed=4, late=10)):
+        w.update(graph, values, stamps)
+        whole, solution = w.calculateEstimate(), w.solution()
+        for key in whole.keys():
+            assert np.array_equal(whole.atVector(key), solution.atVector(key))
+        assert len(whole.keys()) == len(w.timestamps())
 
 
 def test_levels_respect_the_budget_and_time_order():

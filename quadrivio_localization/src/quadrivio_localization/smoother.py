@@ -339,8 +339,15 @@ class Localizer:
         # of the same increments lets a drift of a metre wander off unanchored in minutes.
         self.gps_phi = math.exp(-self.dt / self.p.noise.gps_drift_tau)
         self.gps_walk = np.full(2, drift * math.sqrt(1.0 - self.gps_phi ** 2))
+        # the noise models every keyframe uses, made once: the calibration states walk over
+        # calibration_every keyframes
+        Sigmas = gtsam.noiseModel.Diagonal.Sigmas
+        span = math.sqrt(self.p.calibration_every)
+        self.walk_noise = {B: Sigmas(np.array([self.p.noise.gyro_bias_walk * math.sqrt(self.dt)]) * span),
+                           K: Sigmas(self.kin_walk * span), M: Sigmas(self.mag_walk * span), G: Sigmas(self.gps_walk)}
+        self.gyro_noise = gtsam.noiseModel.Isotropic.Sigma(1, self.p.noise.gyro_noise * math.sqrt(self.dt))
         self.smoother.update(graph, values, stamps)
-        self.result = self.smoother.calculateEstimate()
+        self.result = self.smoother.solution()
         return True
 
     # ---------------------------------------------------------------- updating
@@ -363,7 +370,7 @@ class Localizer:
         self._add_mags(graph, values, now)
         t_new = self._t(self.k)
         self.smoother.update(graph, values, stamps)
-        self.result = self.smoother.calculateEstimate()
+        self.result = self.smoother.solution()
         if self.no_odometry_t >= t_new - 1e-9:
             # Without odometry the speed is the estimate's own motion over the last second
             # without it (the constant-velocity factor and the fixes), not the last wheel
@@ -440,25 +447,19 @@ class Localizer:
                                                      X(k0 - 1), X(k0), X(k1)))
                 guess = prev.compose(before.between(prev))
         if dth_gyro is not None:
-            graph.add(factors.gyro_factor(gtsam.noiseModel.Isotropic.Sigma(1, nz.gyro_noise * math.sqrt(self.dt)),
-                                    X(k0), X(k1), B(c0), dth_gyro, self.dt))
+            graph.add(factors.gyro_factor(self.gyro_noise, X(k0), X(k1), B(c0), dth_gyro, self.dt))
             self.latest_rate = dth_gyro / self.dt - float(prev_b[0])
         else:
             self.counters.intervals_without_gyro += 1
-        n = self.p.calibration_every
         calibration_state = self._c(k1) == k1  # a new calibration state at k1, walked from c0's
-        for key, value, sigmas in ((B, prev_b, [nz.gyro_bias_walk * math.sqrt(self.dt)]), (K, kin, self.kin_walk),
-                                   (M, mag, self.mag_walk), (G, drift, self.gps_walk)):
+        for key, value in ((B, prev_b), (K, kin), (M, mag), (G, drift)):
             if key is not G and not calibration_state:
                 continue
-            if key is not G and n > 1:  # the walk over n keyframes
-                sigmas = np.asarray(sigmas, float) * math.sqrt(n)
             if key is G:
-                graph.add(factors.gauss_markov_factor(gtsam.noiseModel.Diagonal.Sigmas(sigmas), G(k0), G(k1), self.gps_phi))
+                graph.add(factors.gauss_markov_factor(self.walk_noise[G], G(k0), G(k1), self.gps_phi))
                 value = self.gps_phi * value
             elif key is B or self.p.calibrate:
-                graph.add(gtsam.BetweenFactorVector(key(c0), key(k1), np.zeros(len(value)),
-                                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float))))
+                graph.add(gtsam.BetweenFactorVector(key(c0), key(k1), np.zeros(len(value)), self.walk_noise[key]))
             else:  # held: a tight prior on each copy (a chain of tight walks would be ill-conditioned)
                 mean, sigma = (self.held[0], self.held[1]) if key is K else (self.held[2], self.held[3])
                 graph.add(gtsam.PriorFactorVector(key(k1), mean, gtsam.noiseModel.Diagonal.Sigmas(sigma)))
@@ -574,6 +575,7 @@ class Localizer:
         newest_fix = self.gps_pending[-1][0] if self.gps_pending else -math.inf
         keep = []
         innovations: Dict[int, Optional[Tuple[np.ndarray, np.ndarray, gtsam.Pose2, np.ndarray]]] = {}
+        newest: Dict[str, Optional[np.ndarray]] = {}  # the newest keyframe's antenna covariance, once
 
         def innovation(i: int):
             """(innovation, motion-corrected fix, keyframe pose, drift) of pending fix i, None before its keyframe."""
@@ -604,7 +606,7 @@ class Localizer:
             # keyframes to a guess (the group test uses the fixes already in).
             blind = self.no_odometry_t >= self._t(self.k) - g.group
             if (g.group > 0.0 and not blind and newest_fix < t + g.group - 1e-9
-                    and self.latest_t < t + g.group + g.group_wait and self._lookahead_worth(t, ve, vn, values)):
+                    and self.latest_t < t + g.group + g.group_wait and self._lookahead_worth(t, ve, vn, values, newest)):
                 keep.append(self.gps_pending[i])
                 continue
             inn = innovation(i)
@@ -665,13 +667,17 @@ class Localizer:
                 self.counters.gps_used += 1
         self.gps_pending = keep
 
-    def _lookahead_worth(self, t: float, ve: float, vn: float, values: gtsam.Values) -> bool:
-        """GpsGate.lookahead_worth for this fix, with the group's size from the recent fix rate."""
-        pose = self._pose(self.k, values)
-        if pose is None:
+    def _lookahead_worth(self, t: float, ve: float, vn: float, values: gtsam.Values, newest: Dict) -> bool:
+        """GpsGate.lookahead_worth for this fix, with the group's size from the recent fix
+        rate; ``newest`` keeps the newest keyframe's antenna covariance for the update's
+        other fixes."""
+        if "P" not in newest:
+            pose = self._pose(self.k, values)
+            newest["P"] = None if pose is None else self._antenna_cov(pose)
+        if newest["P"] is None:
             return False
         n = 1 + sum(1 for d in self.decided if d[0] > t - self.p.gps_gate.group - 1e-9)
-        return self.gate.lookahead_worth(self._antenna_cov(pose), np.diag([ve, vn]), n)
+        return self.gate.lookahead_worth(newest["P"], np.diag([ve, vn]), n)
 
     def _antenna_cov(self, pose: gtsam.Pose2) -> np.ndarray:
         """Covariance of the estimated antenna position plus drift, map axes: the newest

@@ -184,5 +184,32 @@ class FixedLagWindow:
     def calculateEstimate(self) -> gtsam.Values:
         return self.isam.calculateEstimate()
 
+    def solution(self) -> "Solution":
+        """The current solution, read key by key (see :class:`Solution`)."""
+        return Solution(self.isam, self.stamps)
+
     def marginalCovariance(self, key: int):
         return self.isam.marginalCovariance(key)
+
+
+class Solution:
+    """A window's solution, read key by key, with the ``exists``/``atPose2``/``atVector`` of
+    ``gtsam.Values``. ``calculateEstimate()`` copies and retracts every key of the window
+    (about 200) at every update, where the smoother reads a handful; iSAM2 computes a key's
+    estimate alone the same way (its linearisation point retracted by its delta), so the
+    values read are the same to the bit. Valid until the window's next update."""
+
+    __slots__ = ("_isam", "_keys")
+
+    def __init__(self, isam: gtsam.ISAM2, keys: Dict[int, float]) -> None:
+        self._isam = isam
+        self._keys = keys  # the window's keys: read-only here, changed only by an update
+
+    def exists(self, key: int) -> bool:
+        return key in self._keys
+
+    def atPose2(self, key: int) -> gtsam.Pose2:
+        return self._isam.calculateEstimatePose2(key)
+
+    def atVector(self, key: int):
+        return self._isam.calculateEstimateVector(key)
