@@ -130,7 +130,8 @@ def test_a_campaign_runs_on_the_scheduler_it_is_given(tmp_path):
     assert all(r["end"] == "max_duration" and 0 < r["rmse_m"] < 1.0 for r in data["runs"])
 
 
-def test_an_unreachable_scheduler_is_named(tmp_path, capsys):
+def test_an_unreachable_scheduler_is_named(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(campaign, "SCHEDULER_TIMEOUT", 1.0)  # a closed local port: no need to wait 10 s
     path = short_scenario(tmp_path)
     out = str(tmp_path / "out")
     code = campaign.main([path, "--seeds", "1", "--out", out, "--scheduler", "tcp://127.0.0.1:9"])

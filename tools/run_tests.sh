@@ -63,16 +63,21 @@ fi
 
 if [ "$mode" = all ] || [ "$mode" = rostest ]; then
   mapfile -t tests < <(cd "$ROOT" && ls test/*.test quadrivio_*/test/*.test 2>/dev/null | grep -e "$filter" | sort)
-  # QUADRIVIO_TEST_JOBS at a time (default: one per core), then those whose file says
-  # "make test: alone" (they measure rates against the wall clock) one at a time. rostest
-  # gives each test its own master; the emulated PLC's port is the one other thing two
-  # stacks would share, so each test gets its own (QUADRIVIO_PLC_PORT, read by the launch files).
+  # QUADRIVIO_TEST_JOBS at a time (default: one per core), and beside them, one at a time,
+  # those whose file says "make test: light" (a node or two, or the simulator alone, timed
+  # in sim time: a fraction of a core); then those whose file says "make test: alone" (they
+  # measure rates against the wall clock) one at a time. rostest gives each test its own
+  # master; the emulated PLC's port is the one other thing two stacks would share, so each
+  # test gets its own (QUADRIVIO_PLC_PORT, read by the launch files).
   jobs_max=${QUADRIVIO_TEST_JOBS:-$(nproc)}
-  shared=() alone=()
+  shared=() alone=() light=()
   for t in "${tests[@]}"; do
-    if grep -q "make test: alone" "$t"; then alone+=("$t"); else shared+=("$t"); fi
+    if grep -q "make test: alone" "$t"; then alone+=("$t")
+    elif grep -q "make test: light" "$t"; then light+=("$t")
+    else shared+=("$t"); fi
   done
-  printf '\n[test] %d rostests: %d at a time, then %d alone\n' "${#tests[@]}" "$jobs_max" "${#alone[@]}"
+  printf '\n[test] %d rostests: %d at a time with %d light ones beside them, then %d alone\n' \
+    "${#tests[@]}" "$jobs_max" "${#light[@]}" "${#alone[@]}"
   failed_file="$LOGS/rostests_failed"
   : > "$failed_file"
   run_rostest() {  # index, file: one line of result, the failure's details under it
@@ -101,10 +106,12 @@ if [ "$mode" = all ] || [ "$mode" = rostest ]; then
       echo "$pkg/$name" >> "$failed_file"
     fi
   }
-  i=0
+  i=${#light[@]}
+  (j=0; for t in "${light[@]}"; do j=$((j + 1)); run_rostest "$j" "$t"; done) &
+  light_lane=$!
   for t in "${shared[@]}"; do
     i=$((i + 1))
-    while [ "$(jobs -rp | wc -l)" -ge "$jobs_max" ]; do wait -n; done
+    while [ "$(jobs -rp | grep -vx "$light_lane" | wc -l)" -ge "$jobs_max" ]; do wait -n; done
     run_rostest "$i" "$t" &
   done
   wait
