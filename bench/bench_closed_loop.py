@@ -30,7 +30,8 @@ sys.path.insert(0, HERE)
 from common import machine, pace_ms, write_result  # noqa: E402
 
 PARTS = {  # cProfile's cumulative time of these functions, each a share of the run's
-    "smoother": "smoother.py:update", "simulator": "simulator.py:step", "guard": "guard.py:decide",
+    "smoother": "smoother.py:update", "simulator": "simulator.py:step",
+    "guard": ("guard_native.py:decide", "guard.py:decide"),  # the roscpp core by default, or the Python one
     "scan handling": "closed_loop.py:on_scan", "follower": "follower.py:update", "predictor": "predictor.py:predicted",
     "planner": "planning.py:plan", "local layer": "local_layer.py:add_scan",
 }
@@ -60,9 +61,11 @@ def profile() -> dict:
     st = pstats.Stats(pr).stats
     total = max(ct for (_, _, _, ct, _) in st.values())
     out = {}
-    for part, key in PARTS.items():
-        file, fn = key.split(":")
-        cum = sum(ct for (f, _, name), (_, _, _, ct, _) in st.items() if f.endswith(file) and name == fn)
+    for part, keys in PARTS.items():
+        cum = 0.0
+        for key in (keys,) if isinstance(keys, str) else keys:
+            file, fn = key.split(":")
+            cum += sum(ct for (f, _, name), (_, _, _, ct, _) in st.items() if f.endswith("/" + file) and name == fn)
         out[part] = round(cum / total, 3)
     return out
 

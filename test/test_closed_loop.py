@@ -30,14 +30,31 @@ def test_the_same_seed_gives_the_same_run_array_for_array():
     assert not _same(a.run.estimate, c.run.estimate)  # another seed, other readings
 
 
-def test_the_guard_stops_the_vehicle_short_of_a_person(tmp_path):
+def _person_stays(folder) -> str:
     with open(resolve("person_on_path")) as f:
         data = yaml.safe_load(f)
     data["actors"][0]["start_time"] = 1000.0  # the person stays
     data["name"] = "person_stays"
-    path = tmp_path / "person_stays.yaml"
+    path = folder / "person_stays.yaml"
     path.write_text(yaml.safe_dump(data))
-    s = load_scenario(str(path))
+    return str(path)
+
+
+def test_the_native_guard_drives_the_run_the_python_guard_drives(tmp_path):
+    """guard_impl: the roscpp node's core through ctypes (the default, as sim.launch's) and the
+    Python reference make the same run, array for array, slowing and holding for a person."""
+    s = load_scenario(_person_stays(tmp_path))
+    a = closed_loop.run(s, 2, max_duration=22.0)
+    b = closed_loop.run(s, 2, max_duration=22.0, guard_impl="guard")
+    for name in STREAMS:
+        assert _same(getattr(a.run, name), getattr(b.run, name)), name
+    assert np.any(a.run.guard["limit"] < 0.1)  # it held the vehicle: the guard's decisions were tested
+    with pytest.raises(ValueError, match="guard_impl must be one of guard_cpp, guard"):
+        closed_loop.run(s, 2, max_duration=1.0, guard_impl="guard_py")
+
+
+def test_the_guard_stops_the_vehicle_short_of_a_person(tmp_path):
+    s = load_scenario(_person_stays(tmp_path))
     r = closed_loop.run(s, 1, max_duration=25.0)
     m = metrics.compute(r.run, s.name, 1, r.wall_s, scenario_vehicle(s))
     assert m["collisions"] == 0 and m["min_clearance_m"] >= 0.3, m

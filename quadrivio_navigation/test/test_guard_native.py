@@ -97,11 +97,18 @@ def _script(events):
 
 
 def _python(events, p, vehicle, hf=None):
-    g = Guard(p, vehicle, None if hf is None else hf.heights)
+    return _drive(Guard(p, vehicle, None if hf is None else hf.heights), events, p)
+
+
+def _drive(g, events, p, states=None):
+    """The events through guard ``g`` (the Python interface): (decision, setpoint, counters) of
+    each request; ``states`` collects ``g.state`` after each vehicle state."""
     out = []
     for e in events:
         if e[0] == "state":
             g.on_state(*e[1:])
+            if states is not None:
+                states.append(g.state)
         elif e[0] == "pitch":
             g.on_pitch(*e[1:])
         elif e[0] == "pose":
@@ -278,3 +285,66 @@ def test_the_cpp_reader_names_a_bad_configuration(edit, error):
                        stderr=subprocess.PIPE, timeout=60)
     assert r.returncode == 1
     assert error in r.stderr.decode()
+
+
+def _wrapped(events, p, vehicle, hf=None):
+    """The events through NativeGuard (the core in this process), and its state after each vehicle state."""
+    from quadrivio_navigation.guard_native import NativeGuard
+
+    states = []
+    return _drive(NativeGuard(p, vehicle, hf, NodeParamsStub()), events, p, states), states
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_wrapper_decides_as_the_python_guard(seed):
+    """NativeGuard (guard_native.py: the C++ core through ctypes, what the closed loop in one
+    process runs) on the random lives of the tests above: every decision's action, numbers,
+    nearest point, texts and counters are the Python guard's, its state the last one given."""
+    vehicle = load_vehicle()
+    p = GuardParams()
+    if seed == 1:
+        p = replace_nested(p, {"brake_decel": 5.0, "margin": 0.6, "warning_margin": 1.5, "creep_margin": 0.7,
+                               "clear_time": 0.3, "scanners": [{"topic": "scan/all", "frame": "laser", "covers": "both"}]})
+    if seed == 2:
+        p = replace_nested(p, {"zone": [[-6.0, -6.0], [9.0, -5.0], [7.0, 8.0], [-5.0, 6.0]], "max_position_sd": 0.8})
+    hf = Heightfield(np.cumsum(np.random.default_rng(200 + seed).normal(0.01, 0.03, (61, 81)), axis=1), 0.25) \
+        if seed % 2 else None
+    events = _random_events(np.random.default_rng(50 + seed), p)
+    py = _python(events, p, vehicle, hf)
+    native, states = _wrapped(events, p, vehicle, hf)
+    assert len(py) == len(native) > 50
+    actions = set()
+    for k, ((d, sp, *counts), (dn, spn, *counts_n)) in enumerate(zip(py, native)):
+        where = f"decision {k}: python {d} / native {dn}"
+        assert (dn.action, dn.direction, dn.field, dn.scanner, dn.reason) == \
+            (d.action, d.direction, d.field, d.scanner, d.reason), where
+        for a, b in ((dn.limit, d.limit), (dn.free, d.free), (dn.protective, d.protective),
+                     (dn.protective_request, d.protective_request), (dn.warning, d.warning), (dn.slope, d.slope),
+                     (spn.speed, sp.speed), (spn.handlebar, sp.handlebar), (spn.brake, sp.brake)):
+            assert a == b or abs(a - b) <= 1e-9 * max(1.0, abs(b)), where
+        assert (dn.nearest is None) == (d.nearest is None), where
+        if d.nearest is not None:
+            assert dn.nearest == pytest.approx(d.nearest, abs=1e-12), where
+        assert (math.isnan(dn.scan_stamp) and math.isnan(d.scan_stamp)) or dn.scan_stamp == d.scan_stamp, where
+        assert counts_n == counts, where
+        actions.add(d.action)
+    assert len(actions) >= 3, f"the random cases reached only actions {actions}"
+    given = [e for e in events if e[0] == "state"]
+    assert [s[1:] for s in states] == [(e[2], e[3]) for e in given]
+
+
+def test_the_wrapper_names_a_bad_configuration_and_a_missing_library(monkeypatch):
+    from quadrivio_navigation import guard_native
+    from quadrivio_navigation.ros import guard_config
+
+    def unknown_key(out, *args):  # what a configuration writer out of step with the core would send
+        buf = io.BytesIO()
+        emit(buf, *args)
+        out.write(b"param track_coasting 1.0\n" + buf.getvalue())
+    monkeypatch.setattr(guard_config, "emit", unknown_key)
+    with pytest.raises(ValueError, match="refused its configuration: .*unknown parameter 'track_coasting'"):
+        guard_native.NativeGuard(GuardParams(), load_vehicle(), None, NodeParamsStub())
+    monkeypatch.setattr(guard_native, "_LIB", None)
+    monkeypatch.setattr(guard_native, "find_library", lambda name: (_ for _ in ()).throw(FileNotFoundError(name)))
+    with pytest.raises(guard_native.GuardUnavailable, match="make setup"):
+        guard_native.load_library()

@@ -9,8 +9,8 @@ link latency; the smoother (``localization.yaml``, the simulated magnetometer's
 calibration, the scenario's ``localization:``) at its rate; the predictor's model at its
 rate (:mod:`quadrivio_localization.predictor`, the port of the roscpp core); the path
 publisher; the planner with the local obstacle layer and replanning (scenarios with a map);
-the obstacle guard (the Python reference core, which the roscpp guard matches decision for
-decision); and the follower on the predicted pose, its requests through the guard to the
+the obstacle guard (the roscpp node's core, ``guard_core.h``, by default; the Python
+reference, which it matches decision for decision, on request); and the follower on the predicted pose, its requests through the guard to the
 PLC. Readings reach their consumers at their delivery time, in delivery order.
 
 Where it differs from the ROS stack, by design:
@@ -137,10 +137,17 @@ class _Delivery:
             yield heapq.heappop(self.q)
 
 
+GUARDS = ("guard_cpp", "guard")  # the roscpp node's core (the launch files' default), the Python reference
+
+
 def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None]] = None,
-        max_duration: Optional[float] = None) -> ClosedLoopResult:
+        max_duration: Optional[float] = None, guard_impl: str = "guard_cpp") -> ClosedLoopResult:
     """Run scenario ``s`` with ``seed`` closed loop (see module docstring); ``progress(t,
-    t_end)`` every simulated second."""
+    t_end)`` every simulated second; ``guard_impl`` as sim.launch's ``guard``: ``guard_cpp``
+    (the roscpp node's core, through :mod:`quadrivio_navigation.guard_native`) or ``guard``
+    (the Python reference)."""
+    if guard_impl not in GUARDS:
+        raise ValueError(f"guard_impl must be one of {', '.join(GUARDS)}, got {guard_impl!r}")
     from quadrivio_description.site import load_site
     from quadrivio_description.urdf import build_urdf
     from quadrivio_description.vehicle import load_vehicle
@@ -211,7 +218,11 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     if gnode.zone_file and not gp.zone:
         gp = replace_nested(gp, {"zone": [list(z) for z in load_zone_file(gnode.zone_file)]}, "zone_file")
     g_heights = heights if gnode.terrain_from_scenario else None
-    guard = Guard(gp, v, g_heights)
+    if guard_impl == "guard_cpp":
+        from quadrivio_navigation.guard_native import NativeGuard
+        guard = NativeGuard(gp, v, hf if gnode.terrain_from_scenario else None, gnode)
+    else:
+        guard = Guard(gp, v, g_heights)
     lever = imu_lever(v)
     g_att = Attitude(gp.slope_tau, lever=lever)
     (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rpy_matrix(

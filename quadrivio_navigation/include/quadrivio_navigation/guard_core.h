@@ -768,6 +768,7 @@ public:
   bool hasLast() const { return has_last_; }
   const Decision& last() const { return last_; }
   bool hasState() const { return has_state_; }
+  double stateStamp() const { return state_t_; }
   double stateSpeed() const { return state_v_; }
   double stateHandlebar() const { return state_h_; }
   int protective_stops = 0, fault_stops = 0, zone_stops = 0;

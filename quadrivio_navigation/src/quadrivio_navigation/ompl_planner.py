@@ -24,6 +24,7 @@ from typing import Callable, List, Optional, Tuple
 import numpy as np
 
 from .costmap import CostGrid, Footprint
+from .native import candidates
 
 _LIB = None
 _LIB_LOCK = threading.Lock()
@@ -35,17 +36,7 @@ class OmplUnavailable(RuntimeError):
 
 
 def _candidates() -> List[str]:
-    names = []
-    for d in os.environ.get("LD_LIBRARY_PATH", "").split(":"):
-        if d:
-            names.append(os.path.join(d, "libquadrivio_ompl.so"))
-    here = os.path.dirname(os.path.abspath(__file__))
-    # the workspace next to the source tree (.ws/devel/lib), whichever way the package is reached
-    for up in range(2, 7):
-        root = os.path.normpath(os.path.join(here, *[".."] * up))
-        names.append(os.path.join(root, ".ws", "devel", "lib", "libquadrivio_ompl.so"))
-        names.append(os.path.join(root, "devel", "lib", "libquadrivio_ompl.so"))
-    return names
+    return candidates("libquadrivio_ompl.so")
 
 
 def load_library():
