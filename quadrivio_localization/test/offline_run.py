@@ -45,12 +45,13 @@ def freeze_script(seconds, start=4.0, stop=5.2, go=15.0):
 
 
 def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_bias=0.0, gps_changes=None, seed=0,
-        script=wandering_script, mag_delay=0.0, imu_delay=0.0, state_gap=None):
+        script=wandering_script, mag_delay=0.0, imu_delay=0.0, state_gap=None, wheel_dead=None):
     """Returns (errors array of [t, position error, heading error, heading sigma, error east, error north,
     covariance xx, xy, yy, estimated speed, true speed], localizer, last estimate). ``mag_delay``: the magnetometer's
     readings reach the smoother this many seconds after their stamp; ``imu_delay`` the same
     for the IMU's; ``state_gap``: (t0, t1), no PLC state stamped in between reaches it (a
-    frozen PLC client)."""
+    frozen PLC client); ``wheel_dead``: (t0, t1), the states stamped in between read a wheel
+    speed of 0 (a dead wheel-speed channel)."""
     v, site = load_vehicle(), load_site()
     frame = site.local_frame()
     sim = Simulator(SimParams(), v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -72,7 +73,9 @@ def run(seconds=90.0, params=None, speed_scale=1.0, handlebar_offset=0.0, gyro_b
             elif name == "plc_state":
                 if state_gap is not None and state_gap[0] <= s.plc_time < state_gap[1]:
                     continue
-                loc.add_vehicle_state(s.plc_time, s.wheel_speed * speed_scale, s.handlebar + handlebar_offset)
+                dead = wheel_dead is not None and wheel_dead[0] <= s.plc_time < wheel_dead[1]
+                loc.add_vehicle_state(s.plc_time, 0.0 if dead else s.wheel_speed * speed_scale,
+                                      s.handlebar + handlebar_offset)
             elif name == "imu":
                 f, w = imu.apply(s.specific_force, s.angular_rate)
                 imus.append((s.stamp, tuple(f), (w[0], w[1], w[2] + gyro_bias)))
