@@ -484,8 +484,7 @@ class Localizer:
             # 0.4 s before a wheel locked and read 0 went in untested: the estimate rode the
             # burst 3.5 m off, held out the true fixes when it ended, and stopped the
             # vehicle for a bump it placed on the path).
-            self.gate.unsettle(keep_burst_before=self._trusted_until(
-                self.dead_wheel.since - self.dead_wheel.check_time - self.dt, "dead"))
+            self.gate.unsettle(keep_burst_before=self._trusted_until(self._dead_onset(), "dead"))
         return dead
 
     def _trusted_until(self, onset: float, found: str) -> float:
@@ -496,12 +495,20 @@ class Localizer:
         ``onset``."""
         going_on = []
         if self.dead_wheel.since is not None and found != "dead":
-            going_on.append(self.dead_wheel.since - self.dead_wheel.check_time - self.dt)
+            going_on.append(self._dead_onset())
         if self.wheel_lock.since is not None:
             going_on.append(self.wheel_lock.drop[0])
         if self.slip is not None and self.slip.since is not None and found != "slip":
-            going_on.append(self.slip.since - max(self.slip.p.window, self.slip.p.gps_window))
+            going_on.append(self._slip_onset())
         return min(going_on) if going_on else onset
+
+    def _dead_onset(self) -> float:
+        """The earliest start of the dead wheel channel going on (its check's time before it was found)."""
+        return self.dead_wheel.since - self.dead_wheel.check_time - self.dt
+
+    def _slip_onset(self) -> float:
+        """The earliest start of the slip going on (its tests' windows before it was found)."""
+        return self.slip.since - max(self.slip.p.window, self.slip.p.gps_window)
 
     def _wheel_locked(self, t0: float, t1: float) -> bool:
         """Whether the wheel is locked over ``[t0, t1]`` (:mod:`.wheel_lock`); meanwhile the
@@ -523,7 +530,7 @@ class Localizer:
         elif self.wheel_lock.since is not None:
             ta = self.wheel_lock.drop[0]
         elif self.dead_wheel.since is not None:
-            ta = self.dead_wheel.since - self.dead_wheel.check_time - self.dt
+            ta = self._dead_onset()
         else:
             return None
         v = self.slip.speed_at(ta)
@@ -555,9 +562,7 @@ class Localizer:
         was = self.slip.since is not None
         slipping = self.slip.update(t)
         if slipping and not was:
-            p = self.slip.p
-            self.gate.unsettle(keep_burst_before=self._trusted_until(self.slip.since - max(p.window, p.gps_window),
-                                                                     "slip"))
+            self.gate.unsettle(keep_burst_before=self._trusted_until(self._slip_onset(), "slip"))
         self.leveller.ignore_wheel = slipping
         self.events.extend(self.slip.pop_events())
         return slipping
