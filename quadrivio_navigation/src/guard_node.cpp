@@ -311,15 +311,20 @@ private:
     double Rmap[9], R[9];
     g::rpyMatrix(attitude_.roll, attitude_.pitch, pose_[3], Rmap);
     matMul(Rmap, mt.R, R);
-    const double z0 = config_.terrain.height(pose_[1], pose_[2]) + config_.wheel_radius;
+    // base_link on its wheels, its height as uncertain as the returns' (local_layer.terrain_ground)
+    const double slack = config_.ground_position_sigmas * std::max(pose_[4], config_.ground_position_sd_min);
+    double grad = 0.0;
+    const double z0 = config_.wheels.empty() ?
+                          config_.terrain.height(pose_[1], pose_[2]) + config_.wheel_radius :
+                          g::baseOnWheels(config_.terrain, pose_[1], pose_[2], Rmap, config_.wheel_radius,
+                                          config_.wheels, &grad);
     double pos[3] = { pose_[1], pose_[2], z0 };
     const double tb[3] = { mt.t[0], mt.t[1], mt.t[2] };
     for (int i = 0; i < 3; ++i)
       pos[i] += Rmap[3 * i] * tb[0] + Rmap[3 * i + 1] * tb[1] + Rmap[3 * i + 2] * tb[2];
     int n = 0;
     auto out = g::demGround(config_.terrain, pos, R, m.ranges, m.angle_min, m.angle_increment, m.range_min,
-                            m.range_max, kMaxRange, config_.ground_tolerance, &n, 0.0,
-                            config_.ground_position_sigmas * std::max(pose_[4], config_.ground_position_sd_min),
+                            m.range_max, kMaxRange, config_.ground_tolerance + slack * grad, &n, 0.0, slack,
                             config_.ground_tolerance_max);
     ground_returns_ += n;
     return out;

@@ -100,6 +100,14 @@ int main()
       attitude.addImu(t, f, w);
       std::printf("attitude %.17g %.17g\n", attitude.roll, attitude.pitch);
     }
+    else if (kind == "base")
+    {
+      double x, y, rpy[3], R[9], grad = 0.0;
+      in >> x >> y >> rpy[0] >> rpy[1] >> rpy[2];
+      g::rpyMatrix(rpy[0], rpy[1], rpy[2], R);
+      const double z = g::baseOnWheels(config.terrain, x, y, R, config.wheel_radius, config.wheels, &grad);
+      std::printf("base %.17g %.17g\n", z, grad);
+    }
     else if (kind == "ground")
     {
       double pos[3], rpy[3], amin, inc, rmin, rmax, max_range, tol, per_m, slack, cap, R[9];

@@ -18,7 +18,7 @@ from quadrivio_description.vehicle import load_vehicle
 from quadrivio_description.attitude import Attitude, imu_lever
 from quadrivio_navigation.fields import ScanPoints
 from quadrivio_navigation.guard import Guard, GuardParams
-from quadrivio_navigation.local_layer import dem_ground
+from quadrivio_navigation.local_layer import base_on_wheels, dem_ground, wheel_centres
 from quadrivio_navigation.ros.guard_config import emit
 from quadrivio_description.frames import rpy_matrix
 from quadrivio_terrain.terrain import Heightfield
@@ -231,6 +231,26 @@ def test_dem_ground_matches_the_python_test():
         assert np.array_equal(g, e)
         some += int(e.sum())
     assert some > 20, "the random scans hardly touched the ground: the comparison tests little"
+
+
+def test_base_on_wheels_matches_the_python_model():
+    """base_link's height on its wheels and the gradient under them (local_layer.base_on_wheels)
+    on a rough grid, not ours: the same to the rounding."""
+    vehicle = load_vehicle()
+    rng = np.random.default_rng(5)
+    z = np.cumsum(rng.normal(0, 0.05, (41, 61)), axis=1)
+    hf = Heightfield(z, 0.5)
+    wheels = wheel_centres(vehicle)
+    script, ref = [], []
+    for _ in range(30):
+        x, y = float(rng.uniform(-12, 12)), float(rng.uniform(-8, 8))
+        rpy = tuple(float(a) for a in rng.normal(0, [0.15, 0.15, 2.0]))
+        ref.append(base_on_wheels(hf.heights, x, y, np.array(rpy_matrix(rpy)), vehicle.wheel_radius, wheels))
+        script.append("base " + " ".join(repr(a) for a in (x, y) + rpy))
+    out = _run(_config(GuardParams(), vehicle, hf), script)
+    got = np.array([[float(a) for a in line.split()[1:]] for line in out])
+    assert np.allclose(got, np.array(ref), rtol=0, atol=1e-12)
+    assert np.ptp(got[:, 1]) > 0.05, "the gradients hardly vary: the comparison tests little"
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -160,7 +160,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route
     from quadrivio_navigation.guard import FAULT, HOLD, STOP, Guard, GuardNodeParams, GuardParams, load_zone_file
     from quadrivio_navigation.local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_ground,
-                                                  scan_in_map, terrain_ground)
+                                                  scan_in_map, terrain_ground, wheel_centres)
     from quadrivio_navigation.maps import OccupancyGrid as Grid
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
@@ -181,6 +181,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
     v, site = scenario_vehicle(s, load_vehicle()), load_site()
+    wheels = wheel_centres(v)  # the guard's and the layer's ground test stand the vehicle on them
     frame = site.local_frame()
     sp = sim_params(s, seed)
     sim = Simulator(sp, v, load_actuators(package_file("config", "actuators.yaml")), build_urdf(v), site)
@@ -408,7 +409,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 lp = layer.p
                 ground = terrain_ground(l_heights, pose[1:4] + (pose[5],), l_att.roll, l_att.pitch, v.wheel_radius,
                                         t_b, R_b, lp.ground_tolerance, lp.ground_tolerance_per_m,
-                                        lp.ground_position_sigmas, lp.ground_tolerance_max)
+                                        lp.ground_position_sigmas, lp.ground_tolerance_max, wheels=wheels)
             layer.add_scan(stamp, sensor, bearings, rr, ground)
         if sc is None:
             return
@@ -419,7 +420,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
             ground = terrain_ground(g_heights, pose[1:4] + (pose[5],), g_att.roll, g_att.pitch, v.wheel_radius, t_b,
                                     R_b, gnode.ground_tolerance, 0.0, gnode.ground_position_sigmas,
-                                    gnode.ground_tolerance_max, gnode.ground_position_sd_min)
+                                    gnode.ground_tolerance_max, gnode.ground_position_sd_min, wheels)
             gr = scan_ground(ground, ranges, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
                              MAX_RANGE)
             if gr.any():

@@ -431,6 +431,28 @@ inline std::vector<char> demGround(const Heightfield& hf, const double pos[3], c
   return out;
 }
 
+// base_link's height on its wheels (local_layer.base_on_wheels): the mean over the wheels
+// (centres in base_link, z 0) of the height at which each centre stands ``wheel_radius``
+// over the terrain under it, the vehicle at (x, y) with rotation ``R`` (row-major, into the
+// map); ``grad``: the norm of the mean of the terrain's gradients under the wheels.
+inline double baseOnWheels(const Heightfield& hf, double x, double y, const double R[9], double wheel_radius,
+                           const std::vector<Point>& wheels, double* grad)
+{
+  const double e = 0.25;  // local_layer.GRADIENT_STEP
+  double z = 0.0, gx = 0.0, gy = 0.0;
+  for (const Point& w : wheels)
+  {
+    const double px = x + R[0] * w.x + R[1] * w.y, py = y + R[3] * w.x + R[4] * w.y;
+    z += hf.height(px, py) + wheel_radius - (R[6] * w.x + R[7] * w.y);
+    gx += hf.height(px + e, py) - hf.height(px - e, py);
+    gy += hf.height(px, py + e) - hf.height(px, py - e);
+  }
+  const double n = static_cast<double>(wheels.size());
+  if (grad != nullptr)
+    *grad = std::hypot(gx / n / (2.0 * e), gy / n / (2.0 * e));
+  return z / n;
+}
+
 // ---------------------------------------------------------------- moving obstacles (tracks.py)
 struct TrackParams
 {
@@ -1290,6 +1312,7 @@ struct Config
   Params params;
   Vehicle vehicle;
   double wheel_radius = 0.0;
+  std::vector<Point> wheels;  // centres in base_link ("tracks"; none: base_link over the DEM at its origin)
   double imu_rpy[3] = { 0.0, 0.0, 0.0 };
   double imu_xyz[3] = { 0.0, 0.0, 0.0 };
   std::string base_frame = "base_link";
@@ -1352,6 +1375,7 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
   std::map<std::string, bool> seen;
   char line[4096];
   bool has_body = false, has_vehicle = false;
+  Point tracks_line{ 0.0, 0.0 };  // (front, rear) track [m]
   while (std::fgets(line, sizeof(line), in) != nullptr)
   {
     std::string text(line);
@@ -1371,6 +1395,13 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
         return error = "no scanner", false;
       if (!has_body || !has_vehicle)
         return error = "no vehicle geometry (body, vehicle)", false;
+      if (tracks_line.x != 0.0 || tracks_line.y != 0.0)
+      {
+        if (!(tracks_line.x > 0.0 && tracks_line.y > 0.0))
+          return error = "tracks must be > 0 m", false;
+        const double wb = c.vehicle.wheelbase, f = 0.5 * tracks_line.x, r = 0.5 * tracks_line.y;
+        c.wheels = { Point{ wb, f }, Point{ wb, -f }, Point{ 0.0, r }, Point{ 0.0, -r } };
+      }
       return true;
     }
     if (std::sscanf(line, "param %255s %lf", a, &x[0]) == 2)
@@ -1404,6 +1435,8 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
       c.wheel_radius = x[3];
       has_vehicle = true;
     }
+    else if (std::sscanf(line, "tracks %lf %lf", &x[0], &x[1]) == 2)
+      tracks_line = { x[0], x[1] };
     else if (std::sscanf(line, "imu_rpy %lf %lf %lf", &x[0], &x[1], &x[2]) == 3)
       std::copy(x, x + 3, c.imu_rpy);
     else if (std::sscanf(line, "imu_xyz %lf %lf %lf", &x[0], &x[1], &x[2]) == 3)

@@ -20,7 +20,8 @@ as a nav_msgs/OccupancyGrid: 100 marked, 0 seen free, -1 unknown.
 rises into its plane ahead (a bank, the far side of a dip) or when the vehicle pitches
 into it. Where the terrain's height ``z(x, y)`` is known (a DEM: the scenario's terrain,
 a survey), a return whose height, from the scanner's 3D pose (the vehicle's roll and
-pitch, REP-103), lies within ``ground_tolerance`` of the terrain is the ground: it
+pitch, REP-103, standing on its wheels on the terrain), lies within ``ground_tolerance``
+(grown by the pose's uncertainty, :func:`terrain_ground`) of the terrain is the ground: it
 neither marks nor clears beyond itself. Without a DEM nothing is taken for the ground:
 the vehicle's pitch alone cannot tell a bank from the obstacle at the foot of a slope it
 drives down (its scan plane is parallel to that slope), and what cannot be told apart
@@ -184,15 +185,49 @@ def _shift(a: np.ndarray, dx: int, dy: int, fill) -> np.ndarray:
     return out
 
 
+def wheel_centres(vehicle) -> np.ndarray:
+    """The four wheels' centres in base_link (x, y) [m]: front left, front right, rear left,
+    rear right (base_link is the rear axle's centre, at the wheels' height at rest)."""
+    wb, f, r = vehicle.wheelbase, 0.5 * vehicle.front_track, 0.5 * vehicle.rear_track
+    return np.array([[wb, f], [wb, -f], [0.0, r], [0.0, -r]])
+
+
+def base_on_wheels(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], x: float, y: float,
+                   R_map: np.ndarray, wheel_radius: float, wheels: np.ndarray) -> Tuple[float, float]:
+    """base_link's height [m] of a vehicle at (x, y) with rotation ``R_map`` (roll, pitch,
+    yaw) standing on the DEM on its wheels (``wheels``: their centres in base_link, (n, 2)):
+    the mean over the wheels of the height at which each wheel's centre stands
+    ``wheel_radius`` over the terrain under it. And the norm of the mean of the terrain's
+    gradients under the wheels (central differences over ``GRADIENT_STEP``): how fast that
+    height moves when the pose moves horizontally.
+
+    The DEM's height under base_link alone is off by the bumps under the wheels: on the
+    rough terrain at 3 m/s, 19 mm RMS (62 mm at worst) from the true pose against 5 mm
+    (17 mm) from the wheels."""
+    w = np.asarray(wheels, dtype=float)
+    c = R_map[:, :2] @ w.T  # (3, n): the centres' offsets in the map
+    px, py = x + c[0], y + c[1]
+    z = float(np.mean(heights(px, py) + wheel_radius - c[2]))
+    e = GRADIENT_STEP
+    gx = float(np.mean(heights(px + e, py) - heights(px - e, py))) / (2.0 * e)
+    gy = float(np.mean(heights(px, py + e) - heights(px, py - e))) / (2.0 * e)
+    return z, math.hypot(gx, gy)
+
+
 def scanner_pose_3d(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], x: float, y: float, yaw: float,
-                    roll: float, pitch: float, wheel_radius: float, t_b, R_b) -> Tuple[np.ndarray, np.ndarray]:
+                    roll: float, pitch: float, wheel_radius: float, t_b, R_b,
+                    wheels: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
     """The scanner's 3D pose in the map (position (3,), rotation 3 x 3) from the vehicle's
     planar pose, its roll and pitch and its mount (``t_b`` (3,), ``R_b`` 3 x 3 in
-    base_link): base_link stands ``wheel_radius`` above the DEM at (x, y)."""
+    base_link): base_link stands on the wheels (:func:`base_on_wheels`), or without
+    ``wheels``, ``wheel_radius`` above the DEM at (x, y)."""
     from quadrivio_description.frames import rpy_matrix
 
     R_map = np.array(rpy_matrix((roll, pitch, yaw)))
-    z0 = float(heights(np.array([x]), np.array([y]))[0]) + wheel_radius
+    if wheels is not None:
+        z0 = base_on_wheels(heights, x, y, R_map, wheel_radius, wheels)[0]
+    else:
+        z0 = float(heights(np.array([x]), np.array([y]))[0]) + wheel_radius
     return np.array([x, y, z0]) + R_map @ np.asarray(t_b, float), R_map @ np.asarray(R_b, float)
 
 
@@ -244,16 +279,29 @@ def dem_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], position
 
 def terrain_ground(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], pose, roll: float, pitch: float,
                    wheel_radius: float, t_b, R_b, tolerance: float, per_metre: float, sigmas: float,
-                   cap: float, sd_min: float = 0.0) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+                   cap: float, sd_min: float = 0.0,
+                   wheels: Optional[np.ndarray] = None) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
     """The ground test (:func:`dem_ground`) of a scan from a scanner mounted at ``t_b``,
     ``R_b`` (base_link) on a vehicle at ``pose`` (x, y, yaw, horizontal sd of the position)
     with ``roll`` and ``pitch``: the slack is ``sigmas`` of that sd, taken as at least
     ``sd_min`` (the guard's ``ground_position_sd_min``: the estimate's own sd can be a third
-    of its error on rough ground). The guard and the layer (their nodes and the one-process
-    loop) all call this."""
+    of its error on rough ground). With ``wheels`` (:func:`wheel_centres`) the vehicle
+    stands on them (:func:`base_on_wheels`), and the scanner's own height is as uncertain as
+    the returns': the slack times the gradient under the wheels joins the tolerance (on the
+    rough terrain at 3 m/s a pose 0.36 m off put the front laser 0.13 m low on a bump's
+    face, and the ground 3-4.6 m ahead read 0.16-0.22 m under the DEM: a false stop). The
+    guard and the layer (their nodes and the one-process loop) all call this."""
+    from quadrivio_description.frames import rpy_matrix
+
     x, y, yaw, sd = pose
-    pos, R = scanner_pose_3d(heights, x, y, yaw, roll, pitch, wheel_radius, t_b, R_b)
-    return dem_ground(heights, pos, R, tolerance, per_metre, sigmas * max(sd, sd_min), cap)
+    slack = sigmas * max(sd, sd_min)
+    if wheels is None:
+        pos, R = scanner_pose_3d(heights, x, y, yaw, roll, pitch, wheel_radius, t_b, R_b)
+        return dem_ground(heights, pos, R, tolerance, per_metre, slack, cap)
+    R_map = np.array(rpy_matrix((roll, pitch, yaw)))
+    z0, grad = base_on_wheels(heights, x, y, R_map, wheel_radius, wheels)
+    pos = np.array([x, y, z0]) + R_map @ np.asarray(t_b, float)
+    return dem_ground(heights, pos, R_map @ np.asarray(R_b, float), tolerance + slack * grad, per_metre, slack, cap)
 
 
 def scan_in_map(x: float, y: float, yaw: float, t_b, R_b, angle_min: float, angle_increment: float, ranges,

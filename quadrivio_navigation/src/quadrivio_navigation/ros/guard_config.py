@@ -11,6 +11,7 @@ from the parameter server and writes on stdout, one item per line (floats as Pyt
     zone <x> <y>                              the operating zone's vertices (map frame)
     body <front> <rear> <left> <right>        the vehicle's rectangle about base_link [m]
     vehicle <wheelbase> <ratio> <max_rate> <wheel_radius>
+    tracks <front> <rear>                     the wheels' centres: (wheelbase, +-front/2), (0, +-rear/2)
     imu_rpy <roll> <pitch> <yaw>              the IMU's mount in base_link
     imu_xyz <x> <y> <z>                       ...and its position (the attitude's lever arm)
     node <name> <value>                       base_frame, request_timeout, ground_tolerance,
@@ -55,6 +56,7 @@ def emit(out: BinaryIO, p, node, vehicle, hf) -> None:
     lines.append(f"body {body.front!r} {body.rear!r} {body.left!r} {body.right!r}")
     st = vehicle.steering
     lines.append(f"vehicle {vehicle.wheelbase!r} {st.ratio!r} {st.max_rate!r} {vehicle.wheel_radius!r}")
+    lines.append(f"tracks {vehicle.front_track!r} {vehicle.rear_track!r}")
     rpy = vehicle.sensors["imu_link"].rpy if "imu_link" in vehicle.sensors else (0.0, 0.0, 0.0)
     lines.append("imu_rpy " + " ".join(repr(float(a)) for a in rpy))
     xyz = vehicle.sensors["imu_link"].xyz if "imu_link" in vehicle.sensors else (0.0, 0.0, 0.0)

@@ -54,7 +54,7 @@ from quadrivio_plc.msg import Setpoint, VehicleState
 
 from quadrivio_description.attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan, scan_points
-from ..local_layer import scan_ground, terrain_ground
+from ..local_layer import scan_ground, terrain_ground, wheel_centres
 from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \
     load_zone_file
 from ..msg import GuardStatus
@@ -90,6 +90,7 @@ class GuardNode:
         self.p = p
         self.heights = None if hf is None else hf.heights
         self.core = Guard(p, self.vehicle, self.heights)
+        self.wheels = wheel_centres(self.vehicle)
         self.imu_mount = self.vehicle.sensors["imu_link"].rpy if "imu_link" in self.vehicle.sensors else (0, 0, 0)
         self.attitude = Attitude(p.slope_tau, lever=imu_lever(self.vehicle))
         self.pose = None  # (stamp, x, y, yaw, horizontal sd) from localization/predicted
@@ -126,7 +127,7 @@ class GuardNode:
         ground = terrain_ground(self.heights, pose[1:], self.attitude.roll, self.attitude.pitch,
                                 self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3],
                                 n.ground_tolerance, 0.0, n.ground_position_sigmas, n.ground_tolerance_max,
-                                n.ground_position_sd_min)
+                                n.ground_position_sd_min, self.wheels)
         return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:

@@ -42,7 +42,8 @@ from quadrivio_plc.msg import VehicleState
 
 from quadrivio_description.attitude import Attitude, imu_lever
 from ..fields import ScanError, check_scan
-from ..local_layer import LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_in_map, terrain_ground
+from ..local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_in_map, terrain_ground,
+                           wheel_centres)
 from .site_inputs import StaticFrames, scenario_terrain
 
 
@@ -55,6 +56,7 @@ class LocalLayerNode:
         self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: LocalLayerParams = with_scenario(node_params(LocalLayerParams, rest), "local_layer")
         self.vehicle = vehicle_params()
+        self.wheels = wheel_centres(self.vehicle)
         self.layer = LocalLayer(self.p)
         self.lock = threading.Lock()
         self.inputs = input_guard()
@@ -159,7 +161,8 @@ class LocalLayerNode:
             lp = self.p
             ground = terrain_ground(self.heights, (x, y, yaw, sd), self.attitude.roll, self.attitude.pitch,
                                     self.vehicle.wheel_radius, t_b, R_b, lp.ground_tolerance,
-                                    lp.ground_tolerance_per_m, lp.ground_position_sigmas, lp.ground_tolerance_max)
+                                    lp.ground_tolerance_per_m, lp.ground_position_sigmas, lp.ground_tolerance_max,
+                                    wheels=self.wheels)
         with self.lock:
             self.layer.add_scan(stamp, sensor, bearings, ranges, ground)
         self.update_ms.append(1e3 * (time.perf_counter() - t0))
