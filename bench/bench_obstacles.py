@@ -22,7 +22,10 @@ setpoint, every protective stop of the ROS runs at factor 1), ``obstacle_replan_
 parked at the goal), ``laser_dropout_stop_s_max`` (the silent laser's last scan to the
 vehicle's standstill), ``zone_exits`` (runs whose true footprint left the zone);
 ``guard_cpu_frac`` (the guard's CPU seconds per simulated second in a factor-1 run of
-person_on_path; ``guard_cpu_frac_python``: the Python reference guard's in the same run again) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
+person_on_path; ``guard_cpu_floor_frac``: in that run, beside it, guard_inputs_sink's, a roscpp
+node with the guard's subscriptions that does nothing with them: the floor of delivering the
+guard's inputs, as a ratio to the guard's CPU over the same seconds; ``guard_cpu_frac_python``:
+the Python reference guard's in the same run again) and ``local_layer_update_p99_ms`` (its scans replayed into the layer
 in this process, one update per scan).
 
 ``--seeds N`` (default 10), ``--speeds 2,3``, ``--only a,b``, ``--runner in_process|ros``,
@@ -37,6 +40,7 @@ import json
 import math
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -74,7 +78,43 @@ def variant(name: str, speed: float, folder: str) -> str:
     return path
 
 
-def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "", extra=()) -> dict:
+def _sink_beside(node: str, stop: threading.Event, out: dict) -> None:
+    """Once ``node`` runs, start guard_inputs_sink (the guard's subscriptions and nothing else)
+    on its master as ``guard_floor``, and its CPU seconds into ``out`` as _watch_cpu does:
+    the floor under the guard's CPU, in the same run."""
+    env = None
+    while env is None and not stop.wait(0.5):
+        for pid in os.listdir("/proc"):
+            if not pid.isdigit():
+                continue
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                    if f"__name:={node}".encode() not in fh.read().split(b"\0"):
+                        continue
+                with open(f"/proc/{pid}/environ", "rb") as fh:
+                    env = dict(kv.split(b"=", 1) for kv in fh.read().split(b"\0") if b"=" in kv)
+                break
+            except OSError:
+                continue
+    if env is None:
+        return
+    uri = env.get(b"ROS_MASTER_URI", b"").decode()
+    sink = subprocess.Popen(["rosrun", "quadrivio_navigation", "guard_inputs_sink", "__name:=guard_floor"],
+                            env=dict(os.environ, ROS_MASTER_URI=uri), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    try:
+        _watch_cpu("guard_floor", stop, out)
+    finally:
+        sink.send_signal(signal.SIGINT)  # roscpp's shutdown: it prints its counts
+        try:
+            text = sink.communicate(timeout=10)[0]
+        except subprocess.TimeoutExpired:
+            sink.kill()
+            text = sink.communicate()[0]
+        out["received"] = " ".join(line for line in text.splitlines() if "received" in line)
+
+
+def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "", extra=(), floor: dict = None) -> dict:
     if os.path.isdir(out):
         shutil.rmtree(out)
     cmd = ["rosrun", "quadrivio", "experiment", path, "--seed", str(seed), "--rtf", str(rtf), "--out", out,
@@ -84,9 +124,14 @@ def run(path: str, seed: int, out: str, rtf: float, cpu_node: str = "", extra=()
     if cpu_node:
         th = threading.Thread(target=_watch_cpu, args=(cpu_node, stop, cpu), daemon=True)
         th.start()
+    if floor is not None:
+        fl = threading.Thread(target=_sink_beside, args=(cpu_node, stop, floor), daemon=True)
+        fl.start()
     t0 = time.monotonic()
     p = subprocess.run(cmd, capture_output=True, text=True)
     stop.set()
+    if floor is not None:
+        fl.join(timeout=30)
     metrics = os.path.join(out, "metrics.json")
     if not os.path.isfile(metrics):
         print(p.stdout[-1500:], p.stderr[-1500:], file=sys.stderr)
@@ -140,7 +185,7 @@ def _watch_cpu(node: str, stop: threading.Event, out: dict) -> None:
                 continue
             try:
                 with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                    if f"__name:={node}".encode() not in fh.read():
+                    if f"__name:={node}".encode() not in fh.read().split(b"\0"):
                         continue
                 with open(f"/proc/{pid}/stat") as fh:
                     f = fh.read().rsplit(")", 1)[1].split()
@@ -150,6 +195,7 @@ def _watch_cpu(node: str, stop: threading.Event, out: dict) -> None:
             first = c if first is None else first
             last = c
             out["cpu_s"] = last - first
+            out.setdefault("samples", []).append((time.monotonic(), c))
 
 
 def layer_update_ms(bag_path: str):
@@ -310,9 +356,21 @@ def main() -> None:
     # the guard's CPU and the layer's update time, from a factor-1 run
     if "person_on_path" in names:
         out = os.path.join(args.out, "cpu_person_on_path")
-        m = run(variant("person_on_path", 2.0, args.out), 1, out, 1.0, cpu_node="guard")
+        floor = {}
+        m = run(variant("person_on_path", 2.0, args.out), 1, out, 1.0, cpu_node="guard", floor=floor)
         if not m.get("failed") and m.get("cpu", {}).get("cpu_s") is not None:
             result["guard_cpu_frac"] = m["cpu"]["cpu_s"] / m["sim_duration_s"]
+            # the same run's guard_inputs_sink: roscpp's delivery of the guard's inputs, no work
+            if floor.get("cpu_s") and len(floor.get("samples", [])) >= 10:
+                # the guard's CPU over the sink's window (it starts once the guard runs): a ratio
+                gt, gc = np.array(m["cpu"]["samples"]).T
+                (t0, c0), (t1, c1) = floor["samples"][0], floor["samples"][-1]
+                ratio = (c1 - c0) / (np.interp(t1, gt, gc) - np.interp(t0, gt, gc))
+                result["guard_cpu_floor_frac"] = ratio * result["guard_cpu_frac"]
+                result["guard_cpu_floor_received"] = floor.get("received", "")
+                print(f"[bench obstacles] the guard's inputs alone (guard_inputs_sink, the same run): "
+                      f"{result['guard_cpu_floor_frac']:.4f} CPU s per simulated s; {floor.get('received')}",
+                      flush=True)
         # the Python reference guard, the same run right after (the same decisions: test_guard_native.py)
         ref = run(variant("person_on_path", 2.0, args.out), 1, out + "_python_guard", 1.0, cpu_node="guard",
                   extra=["--guard", "guard"])
