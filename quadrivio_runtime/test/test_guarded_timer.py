@@ -2,6 +2,7 @@
 end), and so does one whose clock jumps back; the clock watcher runs the reset hooks."""
 
 import threading
+import time
 
 import pytest
 import rospy
@@ -259,3 +260,40 @@ def test_guarded_timer_inline_in_sim_time(sim_time):
         assert 50.0 < rate < 105.0, rate
     finally:
         t.shutdown()
+
+
+def test_a_sim_time_timer_busy_when_the_clock_moves_back_starts_its_period_again():
+    """The clock moves back (a reset) while the timer's callback runs: when the callback
+    returns, the timer waits one period of the new time, not until the time before the
+    reset comes round again (the localization's cycle, busy at the reset under load, gave
+    no estimate for 89 s of sim time)."""
+    now = [int(89.2e9)]
+    beat = T.SimBeat(now=lambda: now[0], cond=threading.Condition())
+    calls, inside, release = [], threading.Event(), threading.Event()
+
+    def cb(_e):
+        calls.append(now[0])
+        if len(calls) == 1:
+            inside.set()
+            release.wait(5.0)
+    timer = T.SimTimer(0.05, cb, beat)
+    try:
+        now[0] = int(89.25e9)
+        beat.tick(now[0])
+        assert inside.wait(5.0)  # the first call runs ...
+        now[0] = int(0.01e9)  # ... when the clock moves back
+        beat.tick(now[0])
+        release.set()
+        wait(lambda: len(beat.waiting) == 1)  # the timer waits again, on the new time
+        for k in range(2, 31):  # 10 ms ticks up to 0.3 s
+            now[0] = int(k * 0.01e9)
+            beat.tick(now[0])
+            time.sleep(0.002)
+        wait(lambda: len(calls) >= 5)
+        after = [c / 1e9 for c in calls[1:]]
+        assert after[0] <= 0.07, after  # one period after the jump, not at 89.3 s
+        assert all(b - a == pytest.approx(0.05, abs=0.011) for a, b in zip(after, after[1:])), after
+    finally:
+        release.set()
+        timer.shutdown()
+        beat.close()

@@ -86,14 +86,20 @@ class SimBeat:
         self.started = False
         self.closed = False
 
-    def wait(self, due_ns: int, stop: Callable[[], bool]) -> int:
-        """Block until ROS time reaches ``due_ns`` or moves back (or ``stop()``); the time then."""
+    def wait(self, due_ns: int, stop: Callable[[], bool], since_ns: Optional[int] = None) -> int:
+        """Block until ROS time reaches ``due_ns`` or moves back (or ``stop()``); the time then.
+        ``since_ns``: the time ``due_ns`` was scheduled at: time below it has moved back,
+        also when it moved while the caller was not waiting yet (its callback running). A
+        timer that took the time when it began to wait missed such a jump, and slept until
+        the time before the reset came round again (the localization after a reset under
+        load: 89 s without an estimate, faults.test)."""
         event = threading.Event()
         with self.lock:
             now = self.now()
-            if now >= due_ns or self.closed:
+            since = now if since_ns is None else min(since_ns, now)
+            if now >= due_ns or self.closed or (since_ns is not None and now < since_ns):
                 return now
-            self.waiting.append([due_ns, event, now])
+            self.waiting.append([due_ns, event, since])
             self._start()
         while not event.wait(0.5):
             if stop():
@@ -176,12 +182,14 @@ class SimTimer:
         return self._shutdown or rospy.core.is_shutdown_requested()
 
     def _run(self) -> None:
-        due = self.beat.now() + self.period_ns
+        seen = self.beat.now()  # the time the next due was scheduled at
+        due = seen + self.period_ns
         while not self._stopped():
-            now = self.beat.wait(due, self._stopped)  # may wake early (its 0.5 s wait)
+            now = self.beat.wait(due, self._stopped, seen)  # may wake early (its 0.5 s wait)
             if self._stopped() or self.beat.closed:
                 return
             fire, due = _schedule(due, now, self.period_ns)
+            seen = now
             if fire:
                 self.callback(None)
 
