@@ -78,19 +78,27 @@ def variant(name: str, speed: float, folder: str) -> str:
     return path
 
 
+def _node_pids(node: str):
+    """The processes started as ROS node ``node`` (``__name:=node`` among their arguments)."""
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as fh:
+                if f"__name:={node}".encode() in fh.read().split(b"\0"):
+                    yield pid
+        except OSError:
+            continue
+
+
 def _sink_beside(node: str, stop: threading.Event, out: dict) -> None:
     """Once ``node`` runs, start guard_inputs_sink (the guard's subscriptions and nothing else)
     on its master as ``guard_floor``, and its CPU seconds into ``out`` as _watch_cpu does:
     the floor under the guard's CPU, in the same run."""
     env = None
     while env is None and not stop.wait(0.5):
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit():
-                continue
+        for pid in _node_pids(node):
             try:
-                with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                    if f"__name:={node}".encode() not in fh.read().split(b"\0"):
-                        continue
                 with open(f"/proc/{pid}/environ", "rb") as fh:
                     env = dict(kv.split(b"=", 1) for kv in fh.read().split(b"\0") if b"=" in kv)
                 break
@@ -180,13 +188,8 @@ def _watch_cpu(node: str, stop: threading.Event, out: dict) -> None:
     tick = os.sysconf("SC_CLK_TCK")
     first = last = None
     while not stop.wait(0.5):
-        for pid in os.listdir("/proc"):
-            if not pid.isdigit():
-                continue
+        for pid in _node_pids(node):
             try:
-                with open(f"/proc/{pid}/cmdline", "rb") as fh:
-                    if f"__name:={node}".encode() not in fh.read().split(b"\0"):
-                        continue
                 with open(f"/proc/{pid}/stat") as fh:
                     f = fh.read().rsplit(")", 1)[1].split()
             except OSError:

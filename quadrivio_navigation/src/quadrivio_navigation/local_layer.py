@@ -215,19 +215,15 @@ def base_on_wheels(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], x: f
 
 
 def scanner_pose_3d(heights: Callable[[np.ndarray, np.ndarray], np.ndarray], x: float, y: float, yaw: float,
-                    roll: float, pitch: float, wheel_radius: float, t_b, R_b,
-                    wheels: Optional[np.ndarray] = None) -> Tuple[np.ndarray, np.ndarray]:
+                    roll: float, pitch: float, wheel_radius: float, t_b, R_b) -> Tuple[np.ndarray, np.ndarray]:
     """The scanner's 3D pose in the map (position (3,), rotation 3 x 3) from the vehicle's
     planar pose, its roll and pitch and its mount (``t_b`` (3,), ``R_b`` 3 x 3 in
-    base_link): base_link stands on the wheels (:func:`base_on_wheels`), or without
-    ``wheels``, ``wheel_radius`` above the DEM at (x, y)."""
+    base_link): base_link stands ``wheel_radius`` above the DEM at (x, y) (on its wheels:
+    :func:`terrain_ground` with ``wheels``)."""
     from quadrivio_description.frames import rpy_matrix
 
     R_map = np.array(rpy_matrix((roll, pitch, yaw)))
-    if wheels is not None:
-        z0 = base_on_wheels(heights, x, y, R_map, wheel_radius, wheels)[0]
-    else:
-        z0 = float(heights(np.array([x]), np.array([y]))[0]) + wheel_radius
+    z0 = float(heights(np.array([x]), np.array([y]))[0]) + wheel_radius
     return np.array([x, y, z0]) + R_map @ np.asarray(t_b, float), R_map @ np.asarray(R_b, float)
 
 
