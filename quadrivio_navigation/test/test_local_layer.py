@@ -159,6 +159,20 @@ def test_the_ground_tolerance_grows_with_the_poses_uncertainty_on_a_slope_only()
     assert dem_ground(level, (0.0, 0.0, 0.14), R, 0.15, 0.0, 5.0)(*ray)[0]
 
 
+def march(dem, pos, R, bearings, start):
+    """The true scan of a scanner at ``pos`` with rotation ``R`` over the terrain ``dem``:
+    each ray marched from ``start`` m in 2 mm steps to where it meets the ground (NaN: not
+    within 12 m)."""
+    ranges = np.full(len(bearings), np.nan)
+    s = np.arange(start, 12.0, 0.002)
+    for k, b in enumerate(bearings):
+        p = np.asarray(pos)[:, None] + (R @ np.array([np.cos(b), np.sin(b), 0.0]))[:, None] * s
+        below = np.flatnonzero(p[2] <= dem(p[0], p[1]))
+        if len(below):
+            ranges[k] = s[below[0]]
+    return ranges
+
+
 def test_bump_faces_seen_from_an_estimate_off_more_than_its_sd_are_ground_with_the_sd_floor():
     """Rough ground (bumps 0.1 m high every 2 m on a 6 % slope): the vehicle truly at the origin,
     its estimate 0.5 m off with a reported sd of 0.1 m. Its laser, pitched down, meets the
@@ -176,14 +190,7 @@ def test_bump_faces_seen_from_an_estimate_off_more_than_its_sd_are_ground_with_t
     pitch = 0.09  # nose down (REP 103)
     pos, R = scanner_pose_3d(dem, 0.0, 0.0, 0.0, 0.0, pitch, 0.3, t_b, R_b)
     bearings = np.linspace(-0.6, 0.6, 121)
-    ranges = np.full(len(bearings), np.nan)
-    for k, b in enumerate(bearings):  # march each true ray to the terrain
-        d = R @ np.array([np.cos(b), np.sin(b), 0.0])
-        s = np.arange(0.5, 12.0, 0.002)
-        p = pos[:, None] + d[:, None] * s
-        below = np.flatnonzero(p[2] <= dem(p[0], p[1]))
-        if len(below):
-            ranges[k] = s[below[0]]
+    ranges = march(dem, pos, R, bearings, 0.5)
     hit = np.isfinite(ranges)
     assert hit.sum() > 100 and np.nanmax(ranges) < 8.0
     est = (0.5, 0.0, 0.0, 0.1)  # 0.5 m off, sd 0.1
@@ -249,14 +256,7 @@ def test_ground_seen_from_a_pose_off_on_bumps_is_ground_when_the_vehicle_stands_
     old_wrong = new_wrong = posts_missed = returns = 0
     for x0 in np.linspace(0.0, 1.6, 17):
         pos = np.array([x0, 0.0, base_on_wheels(dem, x0, 0.0, R, wr, wheels)[0]]) + R @ t_b
-        ranges = np.full(len(bearings), np.nan)
-        for k, b in enumerate(bearings):  # march each true ray to the terrain
-            d = R @ R_b @ np.array([np.cos(b), np.sin(b), 0.0])
-            s = np.arange(0.3, 12.0, 0.002)
-            p = pos[:, None] + d[:, None] * s
-            below = np.flatnonzero(p[2] <= dem(p[0], p[1]))
-            if len(below):
-                ranges[k] = s[below[0]]
+        ranges = march(dem, pos, R @ R_b, bearings, 0.3)
         hit = np.isfinite(ranges)
         returns += int(hit.sum())
         est = (x0 + 0.36, 0.0, 0.0, 0.15)
