@@ -250,3 +250,28 @@ def test_a_few_heights_are_the_many_heights_bit_for_bit():
             assert np.array_equal(hf.heights(xs[k:k + n], ys[k:k + n]), many[k:k + n])
     with np.errstate(invalid="ignore"), pytest.raises(IndexError):  # the array path's answer, not a ValueError
         hf.heights(np.array([0.0, math.nan]), np.array([0.0, 0.0]))
+
+
+def test_level_ground_answers_what_the_bilinear_sum_answers():
+    """The flat site's known DEM (a level grid at 0) answers 0 without the arithmetic: the
+    same numbers as the bilinear path, inside, outside and at the edges, scalars and arrays;
+    a grid with one raised cell is not level; a NaN point still goes the array way."""
+    from quadrivio_terrain.terrain import Heightfield, known_heightfield
+
+    level = known_heightfield(from_mapping(TerrainParams, {"kind": "flat"}, "test"), np.random.default_rng(0))
+    assert level.level
+    plain = Heightfield(level.z.copy(), level.res)
+    plain.level = False  # the bilinear path on the same grid
+    rng = np.random.default_rng(5)
+    xs, ys = rng.uniform(-300.0, 300.0, 200), rng.uniform(-300.0, 300.0, 200)
+    xs[:2], ys[:2] = [math.inf, -1e9], [0.0, 1e9]
+    for n in (1, 3, 4, 5, 200):
+        a, b = level.heights(xs[:n], ys[:n]), plain.heights(xs[:n], ys[:n])
+        assert a.shape == b.shape and np.array_equal(a, b) and not np.signbit(a).any()
+    assert level.height(12.0, -7.5) == plain.height(12.0, -7.5) == 0.0
+    with np.errstate(invalid="ignore"), pytest.raises(IndexError):
+        level.heights(np.array([0.0, math.nan, 1.0, 2.0, 3.0]), np.zeros(5))
+    z = np.zeros((4, 4))
+    z[2, 1] = 0.3
+    bump = Heightfield(z, 1.0)
+    assert not bump.level and bump.height(-0.5, 0.5) == pytest.approx(0.3)

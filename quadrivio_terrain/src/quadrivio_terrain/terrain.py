@@ -72,6 +72,11 @@ class Heightfield:
         rows, cols = self.z.shape
         self.x0 = -0.5 * (cols - 1) * res
         self.y0 = -0.5 * (rows - 1) * res
+        # level ground at z = 0 (known_heightfield's flat site): every finite point's height
+        # is 0, as the bilinear sum of zeros gives, without the arithmetic (the ground tests
+        # of the guard and the layer ask for thousands of points a scan: an orchard run's CPU
+        # 21.0 -> 14.0 s)
+        self.level = not np.any(self.z)
 
     @property
     def shape(self) -> Tuple[int, int]:
@@ -79,6 +84,8 @@ class Heightfield:
 
     def height(self, x: float, y: float) -> float:
         """Bilinear height at ``(x, y)`` [m]; outside the grid the edge value."""
+        if self.level and math.isfinite(x) and math.isfinite(y):
+            return 0.0
         rows, cols = self.z.shape
         fx = min(max((x - self.x0) / self.res, 0.0), cols - 1.000001)
         fy = min(max((y - self.y0) / self.res, 0.0), rows - 1.000001)
@@ -89,6 +96,8 @@ class Heightfield:
 
     def heights(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Bilinear heights at arrays of points (:meth:`height` for many points)."""
+        if self.level and np.isfinite(x).all() and np.isfinite(y).all():
+            return np.zeros(np.broadcast(x, y).shape)
         if np.ndim(x) == 1 and len(x) <= 4 and all(map(math.isfinite, x)) and all(map(math.isfinite, y)):
             # the guard's and the layer's few points: numpy's overhead was most of their cost
             return np.array([self.height(a, b) for a, b in zip(x, y)])
