@@ -221,3 +221,72 @@ def test_a_replanned_route_counts_each_path_up_to_where_the_next_took_over():
     assert route_length([first, second, third]) == pytest.approx(18.05 + math.hypot(1.95, 2.0) + 4.0 + 4.0)
     assert route_length([first]) == pytest.approx(30.0)
     assert route_length([first, np.zeros((0, 2))]) == pytest.approx(30.0)  # an empty path: no route after it
+
+
+def _collisions_by_every_pose(gt, grid, fp, lethal=65):
+    """collision_events' definition, every ground-truth pose tested cell by cell."""
+    from quadrivio_navigation.costmap import footprint_cells
+
+    occupied = grid.data >= lethal
+    h, w = occupied.shape
+    events, inside = 0, False
+    for x, y, yaw in zip(gt["x"], gt["y"], gt["yaw"]):
+        gx, gy, gth = grid.to_grid_frame(float(x), float(y), float(yaw))
+        rows, cols = footprint_cells(fp, gx, gy, gth, grid.resolution)
+        keep = (rows >= 0) & (cols >= 0) & (rows < h) & (cols < w)
+        hit = bool(occupied[rows[keep], cols[keep]].any())
+        events += hit and not inside
+        inside = hit
+    return events
+
+
+def _cross_track_point_by_point(gt, path):
+    a, ab = path[:-1], np.diff(path, axis=0)
+    denom = np.maximum((ab ** 2).sum(1), 1e-12)
+    out = []
+    for x, y in zip(gt["x"], gt["y"]):
+        u = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / denom, 0.0, 1.0)
+        out.append(math.sqrt(np.min((a[:, 0] + u * ab[:, 0] - x) ** 2 + (a[:, 1] + u * ab[:, 1] - y) ** 2)))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_collisions_and_cross_track_match_the_pose_by_pose_definitions(seed):
+    """collision_events skips the poses the distance transform puts out of reach of every
+    occupied cell, and cross_track takes the points in blocks: both give exactly what testing
+    every pose gives, on random maps (rotated origins, some poses off the map, posts the
+    footprint grazes and walls it crosses)."""
+    from quadrivio.metrics import collision_events, cross_track
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_navigation.maps import OccupancyGrid
+
+    rng = np.random.default_rng(seed)
+    res = float(rng.choice([0.05, 0.2, 0.5]))
+    n = int(40 / res)
+    data = np.zeros((n, n), np.int8)
+    for _ in range(int(rng.integers(3, 30))):  # posts of a cell or a few
+        r, c = rng.integers(0, n, 2)
+        k = int(rng.integers(1, 4))
+        data[r:r + k, c:c + k] = 100
+    if seed % 2:
+        data[:, n // 2] = 100  # a wall across the middle
+    data[rng.random((n, n)) < 0.001] = 70  # lethal, not 100
+    origin = (float(rng.uniform(-25, -15)), float(rng.uniform(-25, -15)), float(rng.uniform(-0.5, 0.5)))
+    grid = OccupancyGrid(data, res, origin)
+    t = np.arange(0.0, 60.0, 0.05)
+    x = 24.0 * np.sin(t / 9.0) + rng.normal(0, 0.05, len(t))  # a wander across the map and off it
+    y = 22.0 * np.sin(t / 5.0 + seed)
+    yaw = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
+    gt = Series(t, {"x": x, "y": y, "yaw": yaw, "vx": np.ones_like(t), "wz": np.zeros_like(t)})
+    fp = Footprint(front=float(rng.uniform(1.5, 2.5)), rear=0.4, left=0.6, right=float(rng.uniform(0.5, 0.8)))
+    expected = _collisions_by_every_pose(gt, grid, fp)
+    assert collision_events(gt, grid, fp) == expected
+    assert expected > 0 or seed % 2 == 0  # the wall is entered
+    empty = OccupancyGrid(np.zeros((n, n), np.int8), res, origin)
+    assert collision_events(gt, empty, fp) == 0
+    path = np.column_stack([np.linspace(-20, 20, 333), 5.0 * np.sin(np.linspace(0, 6, 333))])
+    xt = cross_track(gt, path, 10.0, 50.0)
+    inside = (t >= 10.0) & (t <= 50.0)
+    assert np.array_equal(xt[:, 0], t[inside])
+    assert np.array_equal(xt[:, 1], _cross_track_point_by_point(
+        Series(t[inside], {"x": x[inside], "y": y[inside]}), path))

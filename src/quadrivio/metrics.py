@@ -122,12 +122,15 @@ def cross_track(gt: Series, path: Optional[np.ndarray], t0: float, t1: float) ->
     a, b = path[:-1], path[1:]
     ab = b - a
     denom = np.maximum((ab ** 2).sum(1), 1e-12)
-    out = []
-    for t, x, y in zip(gt.t[m], gt["x"][m], gt["y"][m]):
-        u = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / denom, 0.0, 1.0)
-        d = np.min((a[:, 0] + u * ab[:, 0] - x) ** 2 + (a[:, 1] + u * ab[:, 1] - y) ** 2)
-        out.append((t, math.sqrt(d)))
-    return np.array(out)
+    ax, ay, abx, aby = a[:, 0], a[:, 1], ab[:, 0], ab[:, 1]
+    t, xs, ys = gt.t[m], np.asarray(gt["x"][m], float), np.asarray(gt["y"][m], float)
+    d = np.empty(len(t))
+    rows = max(1, 250_000 // len(ax))  # points per block: a block's arrays stay a few MB
+    for i in range(0, len(t), rows):  # every point against every segment, the same arithmetic per pair
+        x, y = xs[i:i + rows, None], ys[i:i + rows, None]
+        u = np.clip(((x - ax) * abx + (y - ay) * aby) / denom, 0.0, 1.0)
+        d[i:i + rows] = np.sqrt(np.min((ax + u * abx - x) ** 2 + (ay + u * aby - y) ** 2, axis=1))
+    return np.column_stack([t, d])
 
 
 def cross_track_replanned(gt: Series, paths: list, t0: float, t1: float) -> Optional[np.ndarray]:
@@ -164,13 +167,35 @@ def collision_events(gt: Series, grid, footprint, lethal: int = 65) -> Optional[
     from quadrivio_navigation.costmap import footprint_cells
 
     occupied = grid.data >= lethal
+    if not occupied.any():
+        return 0
     h, w = occupied.shape
+    res = grid.resolution
+    # Poses far from every occupied cell cannot touch one: a cell footprint_cells returns has
+    # its centre within the rectangle grown by half a cell's diagonal, so within ``reach`` of
+    # base_link, and base_link within half a diagonal of its own cell's centre. The distance
+    # transform (cell centre to the nearest occupied cell's centre) leaves the exact test to
+    # the poses near something.
+    from scipy.ndimage import distance_transform_edt
+
+    half = 0.5 * math.sqrt(2.0) * res
+    reach = math.hypot(max(footprint.front, footprint.rear) + half, max(footprint.left, footprint.right) + half)
+    clear = distance_transform_edt(~occupied) * res
+    xs, ys, yaws = (np.asarray(gt[k], float) for k in ("x", "y", "yaw"))
+    gxs, gys, _ = grid.to_grid_frame(xs, ys, 0.0)
+    with np.errstate(invalid="ignore"):
+        r, c = np.floor(gys / res), np.floor(gxs / res)
+        on = (r >= 0) & (c >= 0) & (r < h) & (c < w)
+    far = np.zeros(len(xs), dtype=bool)
+    far[on] = clear[r[on].astype(int), c[on].astype(int)] > reach + half + 1e-9
     events, inside = 0, False
-    for x, y, yaw in zip(gt["x"], gt["y"], gt["yaw"]):
-        gx, gy, gth = grid.to_grid_frame(float(x), float(y), float(yaw))
-        rows, cols = footprint_cells(footprint, gx, gy, gth, grid.resolution)
-        keep = (rows >= 0) & (cols >= 0) & (rows < h) & (cols < w)
-        hit = bool(occupied[rows[keep], cols[keep]].any())
+    for i in range(len(xs)):
+        hit = False
+        if not far[i]:
+            gx, gy, gth = grid.to_grid_frame(float(xs[i]), float(ys[i]), float(yaws[i]))
+            rows, cols = footprint_cells(footprint, gx, gy, gth, res)
+            keep = (rows >= 0) & (cols >= 0) & (rows < h) & (cols < w)
+            hit = bool(occupied[rows[keep], cols[keep]].any())
         if hit and not inside:
             events += 1
         inside = hit
