@@ -127,8 +127,9 @@ def plot(summary: dict, path: str) -> None:
 
 
 def main() -> int:
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, as_completed
 
+    from quadrivio.campaign import local_cluster
     from quadrivio.scenario import load_scenario
 
     seeds = list(range(int(os.environ.get("LOC_CAMPAIGN_SEEDS", "10"))))
@@ -144,8 +145,7 @@ def main() -> int:
     log(f"{len(SCENARIOS)} scenarios x {len(seeds)} seeds: ours offline on Dask, the peer in lockstep as runs finish")
     runs = []
     wall0 = time.monotonic()
-    cluster = LocalCluster(n_workers=os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                           dashboard_address=None, silence_logs=40)
+    cluster = local_cluster(os.cpu_count() or 1)  # one BLAS thread each, no Dask profiler
     client = Client(cluster)
     try:
         futures = {client.submit(ours, n, s, work, pure=False): (n, s) for n, s in jobs}

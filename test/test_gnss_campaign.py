@@ -137,3 +137,17 @@ def test_an_unreachable_scheduler_is_named(tmp_path, capsys, monkeypatch):
     code = campaign.main([path, "--seeds", "1", "--out", out, "--scheduler", "tcp://127.0.0.1:9"])
     assert code == 2
     assert "tcp://127.0.0.1:9" in capsys.readouterr().err
+
+
+def test_the_local_cluster_runs_without_dasks_profiler():
+    """campaign's workers: one BLAS thread and no statistical profiler (8-15 % of a run's CPU
+    for a dashboard that is not served)."""
+    from distributed import Client
+
+    with campaign.local_cluster(1) as cluster, Client(cluster) as client:
+        def worker_settings():
+            import os
+
+            import dask
+            return dask.config.get("distributed.worker.profile.enabled"), os.environ.get("OPENBLAS_NUM_THREADS")
+        assert list(client.run(worker_settings).values()) == [(False, "1")]

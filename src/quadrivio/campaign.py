@@ -87,6 +87,23 @@ def _digest(path: str) -> str:
 
 
 # ----------------------------------------------------------------- one run
+def local_cluster(workers: int):
+    """A Dask cluster of ``workers`` processes on this machine, one thread each, for runs.
+
+    The runs are the parallelism: one BLAS thread per worker (numpy's OpenBLAS spins a thread
+    per core after each call: twice a run's CPU for nothing, see launch/stack.launch). And no
+    statistical profiler: Dask's samples each worker's stack every 10 ms for a dashboard that
+    is not served here, 8-15 % of a closed-loop run's CPU (the figure eight in one worker:
+    9.4-9.9 CPU s with it, 8.2-9.0 without, 7.1-8.1 in a plain process)."""
+    import dask
+    from distributed import LocalCluster
+
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers start with it
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                            silence_logs=40)
+
+
 def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
     """One offline run (a Dask task: imports inside, returns plain data)."""
     from quadrivio import offline
@@ -312,7 +329,7 @@ def main(argv=None) -> int:
          + (f", {len(runs)} already done in {args.out}" if runs else ""))
     failures = []
     if jobs:
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, as_completed
 
         cluster = None
         if args.scheduler:
@@ -323,12 +340,8 @@ def main(argv=None) -> int:
                       f"({exc}); nothing run", file=sys.stderr)
                 return 2
         else:
-            # the runs are the parallelism: one BLAS thread per worker (numpy's OpenBLAS spins a thread
-            # per core after each call: twice a run's CPU for nothing, see launch/stack.launch)
-            os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
             workers = args.workers or os.cpu_count() or 1
-            cluster = LocalCluster(n_workers=min(workers, len(jobs)), threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=40)
+            cluster = local_cluster(min(workers, len(jobs)))
             client = Client(cluster)
         wall0 = time.monotonic()
         new_sim = 0.0  # simulated seconds of the runs made now
