@@ -364,3 +364,27 @@ def test_planners_share_the_primitives_and_their_swept_cells_and_plan_as_if_alon
     assert again.ok and np.array_equal(again.poses, ref.poses) and again.cost == ref.cost
     open_again = corridor.plan((0.0, 0.0, 0.0), (-2.0, 3.0, math.pi))  # its own binding kept
     assert np.array_equal(open_again.poses, open_first.poses)
+
+
+@pytest.mark.parametrize("res,padding", [(0.2, 0.35), (0.1, 0.0), (0.5, 0.6)])
+def test_swept_cells_are_the_union_of_each_poses_cells(res, padding):
+    """costmap.swept_cells, the lattice's swept footprints in blocks of poses, gives exactly the
+    cells footprint_cells gives pose by pose, for every generated primitive (densified as the
+    lattice does, from the start cell's centre) and for random scattered poses."""
+    from quadrivio_navigation.costmap import Footprint, densify, footprint_cells, swept_cells
+    from quadrivio_navigation.mprim import GenerationParams, generate
+
+    fp = Footprint.from_vehicle(VEHICLE, padding)
+    prims = generate(GenerationParams(3.5, res, 16, True, 3, 2.0))
+
+    def by_pose(poses):
+        return np.unique(np.vstack([np.column_stack(footprint_cells(fp, x, y, th, res)) for x, y, th in poses]), axis=0)
+
+    for p in prims.primitives[::3]:
+        dense = densify(p.poses, 0.5 * res, math.radians(3.0))
+        poses = np.column_stack([0.5 * res + dense[:, 0], 0.5 * res + dense[:, 1], dense[:, 2]])
+        assert np.array_equal(swept_cells(fp, poses, res), by_pose(poses)), p
+    rng = np.random.default_rng(int(res * 10))
+    poses = np.column_stack([rng.uniform(-20, 20, 37), rng.uniform(-20, 20, 37), rng.uniform(-7, 7, 37)])
+    assert np.array_equal(swept_cells(fp, poses, res), by_pose(poses))
+    assert swept_cells(fp, np.zeros((0, 3)), res).shape == (0, 2)

@@ -85,6 +85,47 @@ def footprint_cells(fp: Footprint, x: float, y: float, theta: float, res: float)
     return rows.ravel()[ok], cols.ravel()[ok]
 
 
+def swept_cells(fp: Footprint, poses: np.ndarray, res: float) -> np.ndarray:
+    """The cells (rows, columns: an (n, 2) array in row-major order, each once) that
+    :func:`footprint_cells` gives for any of ``poses`` (K x 3, grid frame): the same
+    arithmetic, pose by pose, over a block of candidate cells at once (a motion's swept
+    footprint: the lattice's templates took about a second of a planner's start as a loop
+    over its poses)."""
+    poses = np.asarray(poses, dtype=float)
+    local = np.array([[fp.front, -fp.right], [fp.front, fp.left], [-fp.rear, fp.left], [-fp.rear, -fp.right]])
+    blocks = []
+    for k0 in range(0, len(poses), 16):  # 16 poses a block: a long motion's arrays stay a few MB
+        part = poses[k0:k0 + 16]
+        x, y = part[:, 0:1], part[:, 1:2]
+        c = np.array([[math.cos(t)] for t in part[:, 2]])  # math's, as footprint_cells (numpy's may differ by an ulp)
+        s_ = np.array([[math.sin(t)] for t in part[:, 2]])
+        cx_ = x + c * local[:, 0] - s_ * local[:, 1]  # Footprint.corners, pose by pose
+        cy_ = y + s_ * local[:, 0] + c * local[:, 1]
+        c0 = np.floor(cx_.min(axis=1) / res).astype(int)
+        c1 = np.floor(cx_.max(axis=1) / res).astype(int)
+        r0 = np.floor(cy_.min(axis=1) / res).astype(int)
+        r1 = np.floor(cy_.max(axis=1) / res).astype(int)
+        cols = np.arange(c0.min(), c1.max() + 1)
+        rows = np.arange(r0.min(), r1.max() + 1)
+        gx = (cols + 0.5) * res  # cell centres, before each pose's own offset
+        gy = (rows + 0.5) * res
+        dx = gx[None, None, :] - x[:, :, None]  # (K, 1, C)
+        dy = gy[None, :, None] - y[:, :, None]  # (K, R, 1)
+        cc, ss = c[:, :, None], s_[:, :, None]
+        half = 0.5 * res * (np.abs(cc) + np.abs(ss))
+        along = cc * dx + ss * dy
+        across = -ss * dx + cc * dy
+        ok = (np.abs(along - 0.5 * (fp.front - fp.rear)) < 0.5 * (fp.front + fp.rear) + half - 1e-9) & \
+             (np.abs(across - 0.5 * (fp.left - fp.right)) < 0.5 * (fp.left + fp.right) + half - 1e-9)
+        ok &= (cols[None, None, :] >= c0[:, None, None]) & (cols[None, None, :] <= c1[:, None, None])
+        ok &= (rows[None, :, None] >= r0[:, None, None]) & (rows[None, :, None] <= r1[:, None, None])
+        r, q = np.nonzero(ok.any(axis=0))
+        blocks.append(np.column_stack([rows[r], cols[q]]))
+    if not blocks:
+        return np.zeros((0, 2), dtype=int)
+    return np.unique(np.vstack(blocks), axis=0)
+
+
 def densify(poses: np.ndarray, step: float, angle_step: float = 0.05) -> np.ndarray:
     """Poses along a polyline of poses, no farther apart than ``step`` [m] and
     ``angle_step`` [rad], so that a footprint swept through them leaves no gaps."""

@@ -44,7 +44,7 @@ import numpy as np
 from quadrivio_config import param
 
 from . import curves
-from .costmap import LETHAL, CostGrid, Footprint, densify, footprint_cells
+from .costmap import LETHAL, CostGrid, Footprint, densify, footprint_cells, swept_cells
 from .mprim import PrimitiveSet
 
 TWO_PI = 2.0 * math.pi
@@ -108,8 +108,8 @@ class _Prims:
         for p in prims:
             # footprint swept from the start cell's centre, in cells of that start cell
             dense = densify(p.poses, 0.5 * res, math.radians(3.0))
-            cells = np.unique(np.vstack([np.column_stack(footprint_cells(fp, 0.5 * res + x, 0.5 * res + y, th, res))
-                                         for x, y, th in dense]), axis=0)
+            cells = swept_cells(fp, np.column_stack([0.5 * res + dense[:, 0], 0.5 * res + dense[:, 1], dense[:, 2]]),
+                                res)
             self.extent = max(self.extent, int(np.abs(cells).max()))
             self.cells.append(cells)
             self.drow.append(p.dy)
