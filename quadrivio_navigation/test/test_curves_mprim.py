@@ -178,3 +178,51 @@ def test_generate_mprim_command(tmp_path):
     assert out.exists() and (tmp_path / "sub" / "q.png").exists()
     assert read_mprim(str(out)).resolution == 0.25
     assert main(["--resolution", "-1", "--out", str(out)]) == 2
+
+
+def _best_end_every_cell(theta0, dtheta, nominal, r, res, backwards, min_len, longest=False):
+    """mprim._best_end's definition: every cell around the nominal end scored, the first best
+    in row order."""
+    best = None
+    nx, ny = nominal[0] / res, nominal[1] / res
+    span = max(6, int(math.ceil(0.6 * math.hypot(nx, ny))) + 1)
+    flip = math.pi if backwards else 0.0
+    for cx in range(int(round(nx)) - span, int(round(nx)) + span + 1):
+        for cy in range(int(round(ny)) - span, int(round(ny)) + span + 1):
+            dist = math.hypot(cx, cy) * res
+            if dist < min_len - 1e-9 or (cx == 0 and cy == 0):
+                continue
+            mdir = theta0 + flip
+            if cx * math.cos(mdir) + cy * math.sin(mdir) <= 0:
+                continue
+            segs = C.dubins((0.0, 0.0, theta0 + flip), (cx * res, cy * res, theta0 + dtheta + flip), r)
+            turn = C.turning_angle(segs, r)
+            length = C.path_length(segs)
+            if turn > abs(dtheta) + 0.35 or length > 1.08 * dist + 1e-9:
+                continue
+            score = (turn - abs(dtheta)) * 10.0 + abs(dist - math.hypot(*nominal)) / max(res, 1e-9)
+            if longest:
+                score = (turn - abs(dtheta)) * 10.0 + abs(dist - math.hypot(*nominal))
+            if best is None or score < best[0]:
+                best = (score, cx, cy, segs)
+    return None if best is None else (best[1], best[2], best[3])
+
+
+@pytest.mark.parametrize("radius,res,headings,reverse,long_step", [
+    (3.5, 0.2, 16, True, 2.0), (3.5, 0.1, 16, True, 2.0), (2.0, 0.05, 16, False, 1.0), (6.0, 0.5, 8, True, 4.0),
+    (4.3, 0.25, 32, True, 3.0)])
+def test_the_pruned_search_for_primitive_ends_picks_what_scoring_every_cell_picks(monkeypatch, radius, res, headings,
+                                                                                 reverse, long_step):
+    """_best_end tries the cells from the lowest distance term up and stops where that term
+    passes the best score: the same primitives, pose for pose, as scoring every cell."""
+    import quadrivio_navigation.mprim as M
+
+    p = GenerationParams(radius, res, headings, reverse, 3, long_step)
+    fast = generate(p)
+    monkeypatch.setattr(M, "_best_end", _best_end_every_cell)
+    slow = generate(p)
+    assert len(fast.primitives) == len(slow.primitives)
+    for a, b in zip(fast.primitives, slow.primitives):
+        assert (a.start_heading, a.dx, a.dy, a.end_heading, a.cost_mult, a.prim_id) == \
+            (b.start_heading, b.dx, b.dy, b.end_heading, b.cost_mult, b.prim_id)
+        assert np.array_equal(a.poses, b.poses)

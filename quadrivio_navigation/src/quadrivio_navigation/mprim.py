@@ -122,32 +122,51 @@ def _best_end(theta0: float, dtheta: float, nominal: Tuple[float, float], r: flo
               min_len: float, longest: bool = False) -> Optional[Tuple[int, int, list]]:
     """The lattice cell near ``nominal`` (m, start frame of the grid) reached from
     (0, 0, theta0) with end heading theta0 + dtheta by a Dubins curve that turns no more
-    than needed and is barely longer than the straight line."""
-    best = None
+    than needed and is barely longer than the straight line.
+
+    The best score over the cells around ``nominal``, the first such cell in row order:
+    a cell's score is at least its distance term (a curve turns at least ``|dtheta|``), so
+    the cells are tried from the lowest distance term up and the search ends where that
+    term exceeds the best score found (about a fifth of the Dubins curves of trying them
+    all; the same cell)."""
     nx, ny = nominal[0] / res, nominal[1] / res
     span = max(6, int(math.ceil(0.6 * math.hypot(nx, ny))) + 1)
     flip = math.pi if backwards else 0.0
+    mdir = theta0 + flip
+    length0 = math.hypot(*nominal)
+
+    def near(dist: float) -> float:  # the score's distance term
+        return abs(dist - length0) if longest else abs(dist - length0) / max(res, 1e-9)
+
+    cells = []  # (lower bound of the score, row-order index, cx, cy, dist)
     for cx in range(int(round(nx)) - span, int(round(nx)) + span + 1):
         for cy in range(int(round(ny)) - span, int(round(ny)) + span + 1):
             dist = math.hypot(cx, cy) * res
             if dist < min_len - 1e-9 or (cx == 0 and cy == 0):
                 continue
             # the end must lie ahead of the motion direction
-            mdir = theta0 + flip
             if cx * math.cos(mdir) + cy * math.sin(mdir) <= 0:
                 continue
-            segs = curves.dubins((0.0, 0.0, theta0 + flip), (cx * res, cy * res, theta0 + dtheta + flip), r)
-            turn = curves.turning_angle(segs, r)
-            length = curves.path_length(segs)
-            if turn > abs(dtheta) + 0.35 or length > 1.08 * dist + 1e-9:
-                continue
-            # prefer little extra turning, then closeness to the nominal length
-            score = (turn - abs(dtheta)) * 10.0 + abs(dist - math.hypot(*nominal)) / max(res, 1e-9)
-            if longest:
-                score = (turn - abs(dtheta)) * 10.0 + abs(dist - math.hypot(*nominal))
-            if best is None or score < best[0]:
-                best = (score, cx, cy, segs)
-    return None if best is None else (best[1], best[2], best[3])
+            cells.append((near(dist) - 1e-9, len(cells), cx, cy, dist))
+    cells.sort()
+    best_score, found = math.inf, []  # (row-order index, cx, cy, segs, score) of the cells scored
+    for bound, order, cx, cy, dist in cells:
+        if bound > best_score:
+            break  # this cell and every later one score above the best
+        segs = curves.dubins((0.0, 0.0, theta0 + flip), (cx * res, cy * res, theta0 + dtheta + flip), r)
+        turn = curves.turning_angle(segs, r)
+        length = curves.path_length(segs)
+        if turn > abs(dtheta) + 0.35 or length > 1.08 * dist + 1e-9:
+            continue
+        # prefer little extra turning, then closeness to the nominal length
+        score = (turn - abs(dtheta)) * 10.0 + near(dist)
+        best_score = min(best_score, score)
+        found.append((order, cx, cy, segs, score))
+    firsts = [f for f in found if f[4] == best_score]
+    if not firsts:
+        return None
+    _, cx, cy, segs, _ = min(firsts, key=lambda f: f[0])
+    return cx, cy, segs
 
 
 def generate(p: GenerationParams) -> PrimitiveSet:
