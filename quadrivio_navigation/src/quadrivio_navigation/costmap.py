@@ -69,7 +69,9 @@ class Footprint:
 
 
 def footprint_cells(fp: Footprint, x: float, y: float, theta: float, res: float) -> Tuple[np.ndarray, np.ndarray]:
-    """Rows and columns of every cell the footprint at (x, y, theta) overlaps (grid frame)."""
+    """Rows and columns of every cell the footprint at (x, y, theta) overlaps (grid frame).
+    :func:`swept_cells` repeats this arithmetic for blocks of poses: change both together
+    (test_planning's test_swept_cells_are_the_union_of_each_poses_cells holds them equal)."""
     corners = fp.corners(x, y, theta)
     c0, r0 = np.floor(corners.min(axis=0) / res).astype(int)
     c1, r1 = np.floor(corners.max(axis=0) / res).astype(int)
