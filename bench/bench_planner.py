@@ -19,7 +19,9 @@ worker processes, timing not used). Keys:
 * success rates over the feasible pairs (those either planner solved with 10 s),
   collisions (poses of a returned path whose exact, unpadded footprint touches an
   occupied cell), peak memory of this process;
-* the same on the large map with the suffix ``_500m``.
+* the same on the large map with the suffix ``_500m``;
+* ``pace_ms_before`` / ``_after``: the machine's pace around the run (bench/common.py): a
+  time taken at a pace of 24 ms is not one taken at 10.
 
 Writes bench/results/planner.json and planner_pairs.json (every pair's figures).
 """
@@ -41,7 +43,7 @@ from quadrivio_navigation.synthetic_maps import scattered
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import machine, write_result  # noqa: E402
+from common import machine, pace_ms, write_result  # noqa: E402
 
 MAPS = {
     "": dict(size=100.0, res=0.2, seed=21, rocks=60, buildings=8, pairs=50, min_dist=30.0),
@@ -98,8 +100,9 @@ def _reference(args):
 
 def main():
     params = load_params([])
-    result = {"machine": machine(), "reference_budget_s": REFERENCE_BUDGET, "budget_s": params.budget,
-              "ompl_planner": params.ompl.planner, "start_goal_clearance_m": CLEARANCE}
+    # the machine's speed swings 2.4 times within a day: a time read beside the pace (bench/common.py)
+    result = {"machine": machine(), "pace_ms_before": pace_ms(), "reference_budget_s": REFERENCE_BUDGET,
+              "budget_s": params.budget, "ompl_planner": params.ompl.planner, "start_goal_clearance_m": CLEARANCE}
     per_pair = {}
     for key, spec in MAPS.items():
         t = time.perf_counter()
@@ -131,6 +134,7 @@ def main():
     for key in MAPS:
         result.update(summarise(per_pair[key or "_100m"], key))
     result["planner_peak_memory_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    result["pace_ms_after"] = pace_ms()
     write_result("planner", result)
     write_result("planner_pairs", {"machine": result["machine"], "pairs": per_pair})
     for k in sorted(result):

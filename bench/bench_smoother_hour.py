@@ -13,7 +13,8 @@ RMSE.
 Headline keys: ``smoother_hour_update_p99_ms`` (worst block), ``smoother_hour_cpu_frac``
 (worst block), ``smoother_hour_p99_last_over_first`` and ``smoother_hour_rss_growth_mb``
 (last block's end against the first's), ``smoother_hour_factor_slots_growth``, and
-``smoother_update_p99_ms`` / ``smoother_cpu_frac`` over the whole hour. Writes bench/results/smoother_hour.json and
+``smoother_update_p99_ms`` / ``smoother_cpu_frac`` over the whole hour; ``pace_ms_before`` /
+``_after``, the machine's pace around the run (bench/common.py). Writes bench/results/smoother_hour.json and
 smoother_hour.png. ``SMOOTHER_HOUR_S`` shortens the run (for a quick look).
 """
 import math
@@ -27,7 +28,7 @@ import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, machine, write_result  # noqa: E402
+from common import RESULTS, machine, pace_ms, write_result  # noqa: E402
 
 DURATION = float(os.environ.get("SMOOTHER_HOUR_S", "3600"))
 BLOCK = 600.0  # [s]
@@ -44,6 +45,7 @@ def main() -> None:
     from quadrivio import offline
     from quadrivio.scenario import load_scenario, resolve
 
+    pace_before = pace_ms()  # the machine's speed swings 2.4 times within a day: say how fast it was
     with open(resolve("consumer")) as fh:
         data = yaml.safe_load(fh)
     data["name"] = "consumer_hour"
@@ -102,7 +104,8 @@ def main() -> None:
                        "rmse_m": float(np.sqrt(np.mean(e[:, 1] ** 2))) if len(e) else math.nan})
     first, final = blocks[0], blocks[-1]
     result = {
-        "machine": machine(), "scenario": "consumer, figure eight repeated, offline", "seed": 0,
+        "machine": machine(), "pace_ms_before": pace_before, "pace_ms_after": pace_ms(),
+        "scenario": "consumer, figure eight repeated, offline", "seed": 0,
         "simulated_s": float(r.truth[-1, 0]), "wall_s": float(r.wall), "blocks": blocks,
         "smoother_update_p99_ms": float(np.percentile(ms, 99)), "smoother_cpu_frac": float(r.cpu_frac),
         "smoother_hour_update_p99_ms": max(b["update_p99_ms"] for b in blocks),
