@@ -93,8 +93,7 @@ def local_cluster(workers: int):
     The runs are the parallelism: one BLAS thread per worker (numpy's OpenBLAS spins a thread
     per core after each call: twice a run's CPU for nothing, see launch/stack.launch). And no
     statistical profiler: Dask's samples each worker's stack every 10 ms for a dashboard that
-    is not served here, 8-15 % of a closed-loop run's CPU (the figure eight in one worker:
-    9.4-9.9 CPU s with it, 8.2-9.0 without, 7.1-8.1 in a plain process)."""
+    is not served here, a tenth of a closed-loop run's CPU (bench/HISTORY.md)."""
     import dask
     from distributed import LocalCluster
 

@@ -91,8 +91,8 @@ def swept_cells(fp: Footprint, poses: np.ndarray, res: float) -> np.ndarray:
     """The cells (rows, columns: an (n, 2) array in row-major order, each once) that
     :func:`footprint_cells` gives for any of ``poses`` (K x 3, grid frame): the same
     arithmetic, pose by pose, over a block of candidate cells at once (a motion's swept
-    footprint: the lattice's templates took about a second of a planner's start as a loop
-    over its poses)."""
+    footprint, for the lattice's templates; a single pose is cheaper through
+    footprint_cells, which the planners' path checks call pose by pose)."""
     poses = np.asarray(poses, dtype=float)
     local = np.array([[fp.front, -fp.right], [fp.front, fp.left], [-fp.rear, fp.left], [-fp.rear, -fp.right]])
     blocks = []

@@ -127,8 +127,8 @@ def _best_end(theta0: float, dtheta: float, nominal: Tuple[float, float], r: flo
     The best score over the cells around ``nominal``, the first such cell in row order:
     a cell's score is at least its distance term (a curve turns at least ``|dtheta|``), so
     the cells are tried from the lowest distance term up and the search ends where that
-    term exceeds the best score found (the same cell as scoring them all; the default set
-    in 0.19 s instead of 0.53)."""
+    term exceeds the best score found: the same cell as scoring them all, for a fraction
+    of the Dubins curves (bench/HISTORY.md)."""
     nx, ny = nominal[0] / res, nominal[1] / res
     span = max(6, int(math.ceil(0.6 * math.hypot(nx, ny))) + 1)
     flip = math.pi if backwards else 0.0
