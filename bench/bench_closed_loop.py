@@ -27,7 +27,7 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # one core means one core (see launch/stack.launch)
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import ipc_us, machine, pace_ms, write_result  # noqa: E402
+from common import machine, paces, write_result  # noqa: E402
 
 PARTS = {  # cProfile's cumulative time of these functions, each a share of the run's
     "smoother": "smoother.py:update", "simulator": "simulator.py:step",
@@ -97,9 +97,9 @@ def main() -> None:
     args = ap.parse_args()
     result = {"machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M:%S")}
     print("[bench closed_loop] one figure eight in this process", flush=True)
-    result["pace_ms_before"], result["ipc_us_before"] = pace_ms(), ipc_us()
+    result.update(paces("before"))
     result.update(one_run())
-    result["pace_ms_after"], result["ipc_us_after"] = pace_ms(), ipc_us()
+    result.update(paces("after"))
     print(f"[bench closed_loop] inprocess_rtf {result['inprocess_rtf']:.2f} "
           f"({result['inprocess_sim_s_per_cpu_s']:.2f} simulated s per CPU s; the machine's pace "
           f"{result['pace_ms_before']:.1f} ms before, {result['pace_ms_after']:.1f} after)", flush=True)

@@ -28,7 +28,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, experiment, ipc_us, machine, pace_ms, write_result  # noqa: E402
+from common import RESULTS, experiment, machine, paces, write_result  # noqa: E402
 
 SCENARIO = "figure_eight"
 KEYS = ("completed", "rtf", "sim_duration_s", "xte_rmse_m", "xte_max_m", "loc_rmse_m", "pred_rmse_m",
@@ -55,7 +55,7 @@ def same(a: dict, b: dict) -> bool:
 
 
 def main():
-    pace_before, ipc_before = pace_ms(), ipc_us()  # the machine's speed swings 2.4 times within an hour
+    before = paces("before")  # the machine's speed swings 2.4 times within an hour
     runs = {"free_f1": run("free_f1", 1.0, False), "lockstep_a": run("lockstep_a", 0.0, True),
             "lockstep_b": run("lockstep_b", 0.0, True), "lockstep_f1": run("lockstep_f1", 1.0, True)}
     a, b, f1 = runs["lockstep_a"], runs["lockstep_b"], runs["lockstep_f1"]
@@ -64,8 +64,7 @@ def main():
               "lockstep_rtf": min(a.get("rtf") or 0.0, b.get("rtf") or 0.0),
               "lockstep_repeats": 1.0 if ok and same(a, b) else 0.0,
               "lockstep_same_at_rtf1": 1.0 if ok and f1.get("completed") and same(a, f1) else 0.0,
-              "pace_ms_before": pace_before, "pace_ms_after": pace_ms(),
-              "ipc_us_before": ipc_before, "ipc_us_after": ipc_us()}
+              **before, **paces("after")}
     # Read against its limit: the cores over the CPU the stack spends per simulated second
     # in lockstep (the factor it could reach were the loop never waiting on a message)
     cpu = [m.get("stack_cpu_s_per_sim_s") for m in (a, b) if m.get("stack_cpu_s_per_sim_s")]

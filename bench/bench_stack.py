@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from common import RESULTS, experiment, ipc_us, machine, pace_ms, write_result  # noqa: E402
+from common import RESULTS, experiment, machine, pace_ms, paces, write_result  # noqa: E402
 
 FACTORS = (1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0)
 KEYS = ("xte_rmse_m", "xte_max_m")
@@ -43,8 +43,7 @@ def run(rtf: float) -> dict:
 
 def stack_rtf() -> dict:
     runs = {}
-    pace_before = pace_ms()  # the machine's speed swings 2.4 times within an hour: say how fast it was
-    ipc_before = ipc_us()  # ...and its processes' round trips, this stack's kind of work, apart from it
+    before = paces("before")  # the machine's speed swings 2.4 times within an hour: say how fast it was
     ref = run(1.0)
     runs[1.0] = ref
     print(f"[bench stack] factor 1: completed {ref['completed']}, " +
@@ -72,8 +71,7 @@ def stack_rtf() -> dict:
               "criterion": "completed, xte_rmse_m and xte_max_m within 10 % of the factor-1 run, achieved factor "
                            ">= 95 % of the one asked for (stack_rtf_achieved: the highest achieved factor of a run "
                            "that kept the tracking)",
-              "machine": machine(), "pace_ms_before": pace_before, "pace_ms_after": pace_ms(),
-              "ipc_us_before": ipc_before, "ipc_us_after": ipc_us()}
+              "machine": machine(), **before, **paces("after")}
     # Speed read against its limit (issue 28): the CPU per simulated second at factor 1, and at
     # factor 5 (the architecture's contract) the achieved factor over the CPU-bound one (cores /
     # CPU s per simulated s, while sim time ran: experiment's cpu_report)

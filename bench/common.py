@@ -71,6 +71,11 @@ def ipc_us(round_trips: int = 20_000, repeats: int = 3) -> float:
     return best
 
 
+def paces(when: str) -> dict:
+    """Both of the machine's paces now, as ``pace_ms_<when>`` and ``ipc_us_<when>``."""
+    return {f"pace_ms_{when}": pace_ms(), f"ipc_us_{when}": ipc_us()}
+
+
 def write_result(name: str, result: dict) -> str:
     """``bench/results/<name>.json``, with the machine's pace as it is written
     (``pace_ms_after`` and ``ipc_us_after``, unless the benchmark took its own; some take

@@ -38,3 +38,8 @@ def test_a_result_gets_both_paces_unless_it_took_its_own(tmp_path, monkeypatch):
     got = json.loads((tmp_path / "y.json").read_text())
     assert got["pace_ms_after"] == 7.0 and got["ipc_us_after"] == 3.0
     assert sorted(os.listdir(tmp_path)) == ["x.json", "y.json"]  # nothing half-written left
+
+
+def test_paces_name_both_readings_by_when():
+    got = common.paces("before")
+    assert set(got) == {"pace_ms_before", "ipc_us_before"} and all(v > 0.0 for v in got.values())
