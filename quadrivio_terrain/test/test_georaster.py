@@ -46,8 +46,10 @@ def write_dem(path, crs=UTM33, pixel=1.0, half=130.0, nodata=None, hole=None, sc
 
 def test_the_local_frames_geodesy_agrees_with_proj():
     # the frame's own formulas (one for a fix, the same on arrays for a raster's pixels)
-    # against PROJ's geocentric <-> geographic conversion, an implementation not ours
-    import pyproj
+    # against PROJ's geocentric <-> geographic conversion, an implementation not ours (through
+    # the module's loader, which points PROJ at Debian's database from inside the venv)
+    from quadrivio_terrain.georaster import _libs
+    _, pyproj = _libs()
 
     e, n = np.array([0.0, 250.0, -400.0, 33.3, 5000.0]), np.array([0.0, -120.0, 300.0, 999.0, -7000.0])
     u = np.array([0.0, 3.0, -12.0, 150.0, 40.0])
