@@ -19,4 +19,9 @@ case ":$PATH:" in *":$_qv_root/.venv/bin:"*) ;; *) export PATH="$_qv_root/.venv/
 export VIRTUAL_ENV="$_qv_root/.venv"
 export ROS_PYTHON_VERSION=3
 export QUADRIVIO_ROOT="$_qv_root"
+# Debian's pyproj looks for PROJ's database under sys.prefix, which in the venv has none:
+# point it at Debian's (your own PROJ_DATA or PROJ_LIB wins)
+if [ -z "${PROJ_DATA:-}" ] && [ -z "${PROJ_LIB:-}" ] && [ -f /usr/share/proj/proj.db ]; then
+  export PROJ_DATA=/usr/share/proj
+fi
 unset _qv_root
