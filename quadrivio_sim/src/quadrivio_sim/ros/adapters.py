@@ -63,7 +63,7 @@ from sensor_msgs.msg import CameraInfo, Image, Imu, LaserScan, MagneticField, Na
 from quadrivio_runtime.ros import diagnostics, init_node
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import fatal, node_params, private_params, run_seed, site_params, with_scenario
-from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump
+from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_sim.msg import RawGps
 
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
@@ -248,9 +248,9 @@ class GpsAdapter:
 
         def deliver() -> None:
             if self.pub_fix is not None:
-                self.pub_fix.publish(fix)
+                publish(self.pub_fix, fix)
                 if r.status != NO_FIX:
-                    self.pub_vel.publish(vel)
+                    publish(self.pub_vel, vel)
             for line in lines:
                 self.nmea.write(line + "\r\n")
         self.out.push(t, deliver)
@@ -286,7 +286,7 @@ class ImuAdapter:
         gv, av = self.noise.gyro_variance, self.noise.accel_variance
         out.angular_velocity_covariance = [gv, 0.0, 0.0, 0.0, gv, 0.0, 0.0, 0.0, gv]
         out.linear_acceleration_covariance = [av, 0.0, 0.0, 0.0, av, 0.0, 0.0, 0.0, av]
-        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+        self.out.push(m.header.stamp.to_sec(), lambda: publish(self.pub, out))
 
 
 # --------------------------------------------------------------- magnetometer
@@ -316,7 +316,7 @@ class MagAdapter:
         out.magnetic_field.x, out.magnetic_field.y, out.magnetic_field.z = x, y, z
         v = self.p.noise.noise_std ** 2
         out.magnetic_field_covariance = [v, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, v]
-        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+        self.out.push(m.header.stamp.to_sec(), lambda: publish(self.pub, out))
 
 
 # --------------------------------------------------------------------- lasers
@@ -347,7 +347,7 @@ class LaserAdapter:
         out.time_increment, out.scan_time = m.time_increment, m.scan_time
         out.range_min, out.range_max = m.range_min, m.range_max
         out.ranges = self.noise.apply(m.ranges, m.range_min, m.range_max)
-        self.out.push(m.header.stamp.to_sec(), lambda: self.pub.publish(out))
+        self.out.push(m.header.stamp.to_sec(), lambda: publish(self.pub, out))
 
 
 # -------------------------------------------------------------------- cameras
@@ -385,10 +385,10 @@ class CameraAdapter:
         info = self.info
 
         def deliver() -> None:
-            self.pub_image.publish(out)
+            publish(self.pub_image, out)
             if info is not None:
                 info.header = out.header
-                self.pub_info.publish(info)
+                publish(self.pub_info, info)
         self.out.push(m.header.stamp.to_sec(), deliver)
 
 
