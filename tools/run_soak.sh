@@ -41,6 +41,12 @@ r.update({"passed": ok, "wall_s": seconds, "machine": f"{platform.node()} {os.cp
 json.dump(r, open(tmp, "w"), indent=1)
 os.replace(tmp, out)
 sf = r.get("session_fuzz", {})
+
+
+def num(v, digits=3):  # a figure to read; None (not measured) as is
+    return v if not isinstance(v, float) else f"{v:.{digits}f}"
+
+
 st = r.get("stranger", {})
 print(f"[soak] stranger connections {st.get('connections')} refused {st.get('refused')} served {st.get('served')}; "
       f"/clock min {r.get('stranger_clock_min_ratio')} of its rate")
@@ -50,15 +56,15 @@ pc = r.get("plc_contract", {})
 lo = pc.get("lockout", {})
 print(f"[soak] PLC contract: re-entry {len(pc.get('reentry', []))} trips, granted at most "
       f"{max((x['speed_when_granted_mps'] or 0 for x in pc.get('reentry', [])), default=None)} m/s; "
-      f"link back within 1 s in {lo.get('within_1s')} of {lo.get('drops')} drops (worst {lo.get('worst_s')} s); "
+      f"link back within 1 s in {lo.get('within_1s')} of {lo.get('drops')} drops (worst {num(lo.get('worst_s'))} s); "
       f"floods: " + ", ".join(f"{k} /clock {v['clock_min_ratio']} {v['log_lines_per_s']:.1f} lines/s"
                               for k, v in pc.get("flood", {}).items()))
 re = r.get("reentry", [])
 print(f"[soak] re-entry: {len(re)} trips, {sum(x['requests'] for x in re)} requests, "
       f"{sum(len(x['granted_while_moving']) for x in re)} granted while the body moved")
-print(f"[soak] frozen client: standstill {r.get('frozen_client', {}).get('standstill_after_s')} s after the freeze; "
-      f"sensor faults: worst recovery {r.get('sensor_faults_worst_recovery_s')} s; after ~reset: localization "
-      f"{r.get('reset_loc_median_m')} m")
+print(f"[soak] frozen client: standstill {num(r.get('frozen_client', {}).get('standstill_after_s'), 2)} s after the freeze; "
+      f"sensor faults: worst recovery {num(r.get('sensor_faults_worst_recovery_s'))} s; after ~reset: localization "
+      f"{num(r.get('reset_loc_median_m'))} m")
 PY
 fi
 rm -f "$tmp" "$tmp.plc"
