@@ -35,18 +35,18 @@ if [ -s "$tmp" ]; then
 import json, os, platform, sys
 tmp, out, seconds, ok = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4] == "0"
 r = json.load(open(tmp))
-if os.path.exists(tmp + ".plc"):
-    r["plc_contract"] = json.load(open(tmp + ".plc"))
-r.update({"passed": ok, "wall_s": seconds, "machine": f"{platform.node()} {os.cpu_count()} cores"})
-json.dump(r, open(tmp, "w"), indent=1)
-os.replace(tmp, out)
-sf = r.get("session_fuzz", {})
 
 
 def num(v, digits=3):  # a figure to read; None (not measured) as is
     return v if not isinstance(v, float) else f"{v:.{digits}f}"
 
 
+if os.path.exists(tmp + ".plc"):
+    r["plc_contract"] = json.load(open(tmp + ".plc"))
+r.update({"passed": ok, "wall_s": seconds, "machine": f"{platform.node()} {os.cpu_count()} cores"})
+json.dump(r, open(tmp, "w"), indent=1)
+os.replace(tmp, out)
+sf = r.get("session_fuzz", {})
 st = r.get("stranger", {})
 print(f"[soak] stranger connections {st.get('connections')} refused {st.get('refused')} served {st.get('served')}; "
       f"/clock min {r.get('stranger_clock_min_ratio')} of its rate")
