@@ -297,3 +297,43 @@ def test_a_sim_time_timer_busy_when_the_clock_moves_back_starts_its_period_again
         release.set()
         timer.shutdown()
         beat.close()
+
+
+class _Closed:
+    """A publisher or tf2_ros broadcaster whose topic rospy has closed."""
+
+    def __init__(self):
+        self.sent = 0
+
+    def _send(self, msg):
+        self.sent += 1
+        raise rospy.ROSException("publish() to a closed topic")
+
+    publish = sendTransform = _send
+
+
+@pytest.mark.parametrize("send", [T.publish, T.send_transform])
+def test_a_send_to_a_closed_topic_during_shutdown_is_false_and_otherwise_raises(send, monkeypatch):
+    closed = _Closed()
+    monkeypatch.setattr(rospy.core, "is_shutdown_requested", lambda: False)
+    with pytest.raises(rospy.ROSException, match="closed topic"):
+        send(closed, object())
+    monkeypatch.setattr(rospy.core, "is_shutdown_requested", lambda: True)
+    assert send(closed, object()) is False
+    assert closed.sent == 2
+
+
+class _Open:
+    def __init__(self):
+        self.sent = []
+
+    def publish(self, msg):
+        self.sent.append(msg)
+
+    sendTransform = publish
+
+
+@pytest.mark.parametrize("send", [T.publish, T.send_transform])
+def test_a_send_to_an_open_topic_is_true(send):
+    open_ = _Open()
+    assert send(open_, "m") is True and open_.sent == ["m"]

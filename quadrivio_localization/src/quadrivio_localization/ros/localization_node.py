@@ -36,7 +36,8 @@ from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.direct import direct_publisher
 from quadrivio_runtime.ros.params import (node_params, private_params, site_params, split_params,
                                              vehicle_params, with_scenario)
-from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
+from quadrivio_runtime.ros.timer import (check_clock, guarded_timer, input_guard, on_clock_jump, publish,
+                                         send_transform)
 from quadrivio_plc.msg import VehicleState
 
 from ..dead_reckoning import DeadReckoning
@@ -117,7 +118,7 @@ class LocalizationNode:
             tr.transform.translation.x, tr.transform.translation.y = x, y
             q = tr.transform.rotation
             q.x, q.y, q.z, q.w = quaternion_from_yaw(th)
-            self.tf.sendTransform(tr)
+            send_transform(self.tf, tr)
 
     def _on_imu(self, m: Imu) -> None:
         a, w = m.linear_acceleration, m.angular_velocity
@@ -190,7 +191,7 @@ class LocalizationNode:
         tr.transform.translation.y = est.y - (s * ox + c * oy)
         q = tr.transform.rotation
         q.x, q.y, q.z, q.w = quaternion_from_yaw(th)
-        self.tf.sendTransform(tr)
+        send_transform(self.tf, tr)
 
     def _publish_calibration(self, est, sigma, stamp) -> None:
         self.pub_cal.publish(messages.calibration(est, sigma))

@@ -332,8 +332,17 @@ def input_guard(max_future: float = 0.5, max_age: float = float("inf")) -> Input
 def publish(pub: rospy.Publisher, msg) -> bool:
     """``pub.publish(msg)``; False instead of an exception once the node is shutting down
     (rospy closes publishers before ``is_shutdown()`` turns true)."""
+    return _unless_shutting_down(pub.publish, msg)
+
+
+def send_transform(broadcaster, transform) -> bool:
+    """``broadcaster.sendTransform(transform)`` (a tf2_ros broadcaster), as :func:`publish`."""
+    return _unless_shutting_down(broadcaster.sendTransform, transform)
+
+
+def _unless_shutting_down(send: Callable[[object], None], msg) -> bool:
     try:
-        pub.publish(msg)
+        send(msg)
         return True
     except rospy.ROSException:
         if not rospy.core.is_shutdown_requested():
