@@ -261,7 +261,7 @@ class SimNode:
         self.diag.setHardwareID("quadrivio_sim")
         self.diag.add("simulator", self._diag_sim)
         self.diag.add("emulated PLC", self._diag_plc)
-        self.wall_rtf = 0.0
+        self.wall_rtf = None  # achieved factor of the last wall window while running (None: none yet)
 
     # ---------------------------------------------------------------- set-up
     def _urdf_text(self) -> str:
@@ -369,13 +369,14 @@ class SimNode:
         if self.sim.t > 0.0:
             self._publish_clock()
         self._anchor()
-        rate_t0, rate_s0 = time.monotonic(), self.sim.t
+        self.window = (time.monotonic(), self.sim.t, self.paused)
         while not stop.is_set() and not rospy.is_shutdown():
             while not self.requests.empty():
                 self.requests.get_nowait()()
             if self.paused:
                 self.server.poll(0.02)
                 self._drain_plc_events()
+                self._report_window()  # a paused simulator still says so, and what its PLC sees
                 continue
             if self.lockstep is None and self._loop_late():
                 self.hold.wait(self.sim.t, lambda: self.sim.plc.fresh_since, self._driving, self.server.poll,
@@ -402,17 +403,27 @@ class SimNode:
                                   self.pacer.dropped)
                     self.behind_warned = now
             self._drain_plc_events()
-            now = time.monotonic()
-            if now - rate_t0 >= max(1.0, self.diag.period):
-                # Every window is reported: diagnostic_updater's update() waits for a period of
-                # sim time, which a window that fell behind at factor 1 had not advanced (a
-                # 0.6 s stall went unreported, the next window's 1.0 published instead).
-                if self.sim.t >= rate_s0:  # not across a ~reset
-                    self.wall_rtf = (self.sim.t - rate_s0) / (now - rate_t0)
-                rate_t0, rate_s0 = now, self.sim.t
-                self.diag.force_update()
+            self._report_window()
         self.server.close()
         self.sim.close()
+
+    def _report_window(self) -> None:
+        """/diagnostics once a wall window (1 s, or the updater's period if longer), and at once
+        when the simulator pauses or resumes. Every window is reported: diagnostic_updater's
+        update() waits for a period of sim time, which a window that fell behind at factor 1
+        had not advanced (a 0.6 s stall went unreported, the next window's 1.0 published
+        instead) and a paused simulator never advances. A window is all running or all
+        paused: the paused wall seconds are not read as a simulator behind its factor."""
+        now = time.monotonic()
+        t0, s0, was_paused = self.window
+        if self.paused == was_paused and now - t0 < max(1.0, self.diag.period):
+            return
+        if self.paused != was_paused:
+            self.wall_rtf = None  # until a window of the new state is measured
+        elif not self.paused and self.sim.t >= s0:  # not across a ~reset
+            self.wall_rtf = (self.sim.t - s0) / (now - t0)
+        self.window = (now, self.sim.t, self.paused)
+        self.diag.force_update()
 
     def _pace_for_the_loop(self) -> None:
         f = self.slowdown.factor(self.rtf, self.sim.t, self._driving(), time.monotonic())
@@ -507,12 +518,17 @@ class SimNode:
 
     # ----------------------------------------------------------- diagnostics
     def _diag_sim(self, stat):
-        stat.summary(DiagnosticStatus.OK, "paused" if self.paused else "running")
-        if not self.paused and self.rtf > 0 and self.wall_rtf < 0.9 * self.rtf:
-            stat.summary(DiagnosticStatus.WARN, f"behind: real-time factor {self.wall_rtf:.2f} < {self.rtf:.2f}")
+        if self.paused:
+            stat.summary(DiagnosticStatus.OK, f"paused{' (reached ~run_until)' if self.stopped else ''}")
+        else:
+            stat.summary(DiagnosticStatus.OK, "running")
+        achieved = None if self.paused else self.wall_rtf  # of the last window; a paused simulator has none
+        if achieved is not None and self.rtf > 0 and achieved < 0.9 * self.rtf:
+            stat.summary(DiagnosticStatus.WARN, f"behind: real-time factor {achieved:.2f} < {self.rtf:.2f}")
         stat.add("sim time [s]", f"{self.sim.t:.3f}")
         stat.add("requested real-time factor", f"{self.rtf:g}")
-        stat.add("achieved real-time factor", f"{self.wall_rtf:.2f}")
+        if achieved is not None:
+            stat.add("achieved real-time factor", f"{achieved:.2f}")
         stat.add("sim time dropped behind schedule [s]", f"{self.pacer.dropped:.3f} in {self.pacer.drops} stalls")
         if self.hold.enabled:
             stat.add("waits for the PLC client's setpoints", f"{self.hold.holds} ({self.hold.held:.2f} wall s), "
