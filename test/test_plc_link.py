@@ -213,6 +213,18 @@ def test_multiplexer_by_mode_and_staleness():
     assert mux.accepts(P.MODE_AUTO, P.SOURCE_AUTO) and not mux.accepts(P.MODE_AUTO, P.SOURCE_MANUAL)
 
 
+def test_the_multiplexer_says_why_a_source_is_stale():
+    """The PLCClient's warning: at start-up in AUTO no setpoint has come yet (it said "for
+    0.25 s" at t = 0.04 s, the timeout, not an age); later, how old the last one is."""
+    mux = Multiplexer(timeout=0.25, stop_brake=0.5)
+    assert mux.frames(P.MODE_AUTO, 0.04) == [P.Setpoint(P.SOURCE_AUTO, 0.0, 0.0, 0.5)]
+    assert mux.stale[P.SOURCE_AUTO] and mux.why_stale(P.SOURCE_AUTO, 0.04) == "none received yet"
+    mux.update(P.SOURCE_AUTO, 10.0, 2.0, 0.1, 0.0)
+    assert mux.why_stale(P.SOURCE_AUTO, 10.4) == "the last one 0.40 s ago (timeout 0.25 s)"
+    assert mux.frames(P.MODE_AUTO, 3.0) == [P.Setpoint(P.SOURCE_AUTO, 0.0, 0.0, 0.5)]  # from the future: a stop
+    assert "after now (3.000 s): the clock went back" in mux.why_stale(P.SOURCE_AUTO, 3.0)
+
+
 def _driving_session(plc):
     c = RawClient("127.0.0.1", plc.port)
     assert isinstance(c.authenticate(KEY), P.Ack)

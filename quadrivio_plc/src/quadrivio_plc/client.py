@@ -158,6 +158,16 @@ class Multiplexer:
         self.held_handlebar[source] = sp.handlebar
         return protocol.Setpoint(source, sp.speed, sp.handlebar, sp.brake)
 
+    def why_stale(self, source: int, now: float) -> str:
+        """Why ``source`` is replaced by a stop at ``now``, for the log: none received yet,
+        the last one too old (its age), or one stamped after ``now`` (the clock went back)."""
+        sp = self.latest[source]
+        if sp is None:
+            return "none received yet"
+        if now < sp.t:
+            return f"the last one arrived at {sp.t:.3f} s, after now ({now:.3f} s): the clock went back"
+        return f"the last one {now - sp.t:.2f} s ago (timeout {self.timeout:g} s)"
+
     def frames(self, mode: int, now: float) -> List[protocol.Message]:
         if mode == protocol.MODE_MANUAL:
             return [self._setpoint(protocol.SOURCE_MANUAL, now)]

@@ -199,10 +199,10 @@ class PlcClientNode:
                     # subscription that never connected (the start-up race quadrivio_description
                     # .ros.rospy_mends mends)
                     sub = self.setpoint_subs[source]
-                    rospy.logwarn_throttle(5.0, "no %s setpoint for %.2f s in mode %s: sending a stop "
+                    rospy.logwarn_throttle(5.0, "no fresh %s setpoint in mode %s, %s: sending a stop "
                                            "(connected to %d publishers of %s)", protocol.SOURCE_NAMES[source],
-                                           self.p.setpoint_timeout, protocol.mode_name(mode), sub.get_num_connections(),
-                                           sub.resolved_name)
+                                           protocol.mode_name(mode), self.mux.why_stale(source, now),
+                                           sub.get_num_connections(), sub.resolved_name)
 
     def _publish_link_down(self) -> None:
         """No session: say so on vehicle/state at 10 Hz (FAULT_LINK, measurements unknown)."""
