@@ -200,6 +200,10 @@ def test_a_closed_loop_campaign_through_ros_runs_the_whole_stack_per_run(tmp_pat
     assert m["seed"] == 0 and 20.0 < m["sim_duration_s"] < 30.0
     assert "| short_rtk | 1 |" in (out / "campaign.md").read_text()
     assert (folder / "run.bag").exists()
+    # the campaign's plots, the run's track and errors read back from its bag
+    assert "plot_error" not in run, run.get("plot_error")
+    for name in ("campaign.png", "short_rtk_errors.png", "short_rtk_tracks.png"):
+        assert (out / name).stat().st_size > 20000, name
 
 
 @SHARES_THE_EIGHT

@@ -33,8 +33,10 @@ def test_outputs(result):
     md = open(os.path.join(out, "campaign.md")).read()
     assert "| consumer | 1 |" in md
     assert "oracle (perfect odometry)" in md
+    assert os.path.getsize(os.path.join(out, "campaign.png")) > 20000  # the table as a picture
     for n in SCENARIOS:
         assert os.path.getsize(os.path.join(out, f"{n}_errors.png")) > 10000
+        assert not os.path.exists(os.path.join(out, f"{n}_tracks.png"))  # offline: the follower on the truth
         assert os.path.exists(os.path.join(out, "runs", f"{n}_s0.json"))
     assert not [f for f in os.listdir(out) if f.startswith(".")]  # nothing half-written left behind
 

@@ -20,8 +20,13 @@ Written to ``DIR`` (each file complete or absent: written aside and renamed):
 * ``campaign.csv``, ``campaign.md`` -- one row per scenario: mean and spread (standard
   deviation) over the seeds of every figure;
 * ``campaign.json`` -- the table and every run;
+* ``campaign.png`` -- the table as a picture: a panel per figure, a row per scenario, each
+  seed a dot and the mean a bar;
 * ``<scenario>_errors.png`` -- position error over time, one line per seed, the raw GPS's
-  error behind it (offline runs).
+  error behind it;
+* ``<scenario>_tracks.png`` -- closed loop: every seed's true track on the scenario's map,
+  with the actors, the guard's stops and the contacts (``runs/<scenario>_s<seed>.npz``
+  holds what these plots draw).
 """
 
 from __future__ import annotations
@@ -122,6 +127,15 @@ def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> D
     return fig
 
 
+def _write_series(out_dir: str, name: str, seed: int, run) -> None:
+    """A closed-loop run's arrays for the campaign's plots (campaign_plots.run_series)."""
+    from .campaign_plots import run_series
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **run_series(run))
+    _atomic_write(os.path.join(out_dir, "runs", f"{name}_s{seed}.npz"), buf.getvalue())
+
+
 def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, rtf: Optional[float]) -> Dict:
     """One run through ``experiment`` (the whole stack on its own ROS master: ``--ros``)."""
     s = load_scenario(scenario_path)
@@ -137,7 +151,17 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
         raise CampaignError(f"experiment {s.name} seed {seed} failed (exit {p.returncode}): {tail}")
     with open(metrics) as f:
         m = json.load(f)
-    return _closed_loop_figures(s, seed, m, p.returncode == 0)
+    fig = _closed_loop_figures(s, seed, m, p.returncode == 0)
+    try:  # the bag experiment analysed, read again for the campaign's plots
+        from quadrivio_description.site import load_site
+        from quadrivio_description.vehicle import load_vehicle
+
+        from .ros.bag import read_run
+
+        _write_series(out_dir, s.name, seed, read_run(os.path.join(folder, "run.bag"), load_site(""), load_vehicle("")))
+    except Exception as exc:  # the run's figures stand without its plots; campaign.json says why
+        fig["plot_error"] = f"{type(exc).__name__}: {exc}"
+    return fig
 
 
 def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
@@ -148,6 +172,7 @@ def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float) -
     folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
     r = closed_loop.run(s, seed)
     m = closed_loop.write_run(r, s, seed, folder)
+    _write_series(out_dir, s.name, seed, r.run)
     done = m.get("completed")
     if done is None or s.run.end == "duration":
         done = r.outcome == "completed"
@@ -233,7 +258,9 @@ def plot(out: str, name: str, seeds: List[int]) -> Optional[str]:
     for seed in seeds:
         path = os.path.join(out, "runs", f"{name}_s{seed}.npz")
         if os.path.exists(path):
-            series.append((seed, np.load(path)))
+            with np.load(path) as d:
+                if len(d["error"]):
+                    series.append((seed, {k: d[k] for k in ("t", "error", "gps_t", "gps_error")}))
     if not series:
         return None
     fig, ax = plt.subplots(figsize=(9, 4.5))
@@ -255,6 +282,40 @@ def plot(out: str, name: str, seeds: List[int]) -> Optional[str]:
     plt.close(fig)
     _atomic_write(path, buf.getvalue())
     return path
+
+
+def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict) -> List[str]:
+    """campaign.png (the table), and per scenario its errors and, closed loop, its tracks on
+    its map; the names of the files written."""
+    from . import campaign_plots
+    from .scenario import map_file
+
+    written = []
+    png = campaign_plots.summary(rows, runs, COLUMNS, f"{meta['mode']} campaign, seeds {meta['seeds']}")
+    if png is not None:
+        _atomic_write(os.path.join(out, "campaign.png"), png)
+        written.append("campaign.png")
+    for s in scenarios:
+        if plot(out, s.name, seeds):
+            written.append(f"{s.name}_errors.png")
+        series = []
+        for seed in seeds:
+            path = os.path.join(out, "runs", f"{s.name}_s{seed}.npz")
+            if os.path.exists(path):
+                with np.load(path) as d:
+                    series.append((seed, {k: d[k] for k in d.files}))
+        grid = None
+        if map_file(s):
+            from quadrivio_navigation.maps import load_map
+
+            grid = load_map(map_file(s))
+        path = s.data.get("path") or {}
+        goal = path.get("goal") if isinstance(path, dict) and path.get("kind") == "goal" else None
+        png = campaign_plots.tracks(s.name, series, grid, goal)
+        if png is not None:
+            _atomic_write(os.path.join(out, f"{s.name}_tracks.png"), png)
+            written.append(f"{s.name}_tracks.png")
+    return written
 
 
 # ------------------------------------------------------------------- main
@@ -393,10 +454,9 @@ def main(argv=None) -> int:
         if args.closed_loop and new_sim:
             _log(f"{new_sim:.0f} simulated s in {wall:.0f} wall s: {new_sim / wall:.1f} simulated s per wall s")
     write_tables(args.out, rows, runs, meta)
-    if not args.closed_loop:
-        for s in scenarios:
-            plot(args.out, s.name, seeds)
-    _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json, plots)")
+    plots = write_plots(args.out, scenarios, seeds, rows, runs, meta)
+    _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json" +
+         (f"; plots {', '.join(plots)}" if plots else "") + ")")
     with open(os.path.join(args.out, "campaign.md")) as f:
         print(f.read())
     if failures:
