@@ -32,6 +32,7 @@ ROS-free.
 from __future__ import annotations
 
 import copy
+import functools
 import heapq
 import math
 import threading
@@ -184,6 +185,30 @@ def _templates(prims: PrimitiveSet, res: float, fp: Footprint) -> Tuple[List[_Pr
     return [copy.copy(pr) for pr in built], checker
 
 
+@functools.lru_cache(maxsize=8)
+def turning_overhead(r: float, reverse: bool, reverse_cost: float, bins: int = OVERHEAD_BINS) -> Tuple[float, ...]:
+    """Extra cost [m] of setting off towards a far goal with the heading ``alpha`` away from
+    the direction to it, per ``alpha`` bin: the cheapest Reeds-Shepp word (reverse parts at
+    the reverse cost; Dubins without reverse) to a goal 40 turning radii ``r`` ahead, whatever
+    its heading, less the distance. It depends on nothing else, and took a quarter second of
+    every plan (a replan's, a campaign run's): computed once per process."""
+    far = 40.0 * r
+    out = []
+    for b in range(bins):
+        alpha = TWO_PI * b / bins
+        best = math.inf
+        for j in range(16):
+            beta = TWO_PI * j / 16
+            if reverse:
+                # the goal in the start's frame: rotate (far, 0) by -alpha
+                c = curves.rs_cost(far * math.cos(alpha), -far * math.sin(alpha), beta - alpha, r, reverse_cost)
+            else:
+                c = curves.path_length(curves.dubins((0.0, 0.0, alpha), (far, 0.0, beta), r))
+            best = min(best, c)
+        out.append(max(0.0, best - far))
+    return tuple(out)
+
+
 class LatticePlanner:
     """ARA* over ``prims`` on a cost grid (grid frame: metres from cell (0, 0)'s corner)."""
 
@@ -208,31 +233,9 @@ class LatticePlanner:
             pr.bind(self.wp, self.w)
         self._graph = None
         self._free = None
-        self.overhead = self._turning_overhead()
+        self.overhead = turning_overhead(self.r, self.reverse, self.reverse_cost)
         self._handle = None  # the native search (_native): one plan at a time (it keeps the results)
         self._native_lock = threading.Lock()
-
-    def _turning_overhead(self, bins: int = OVERHEAD_BINS) -> List[float]:
-        """Extra cost [m] of setting off towards a far goal with the heading ``alpha`` away
-        from the direction to it: the cheapest Reeds-Shepp word (reverse parts at the
-        reverse cost; Dubins without reverse) to a goal 40 turning radii ahead, whatever
-        its heading, less the distance."""
-        far = 40.0 * self.r
-        out = []
-        for b in range(bins):
-            alpha = TWO_PI * b / bins
-            best = math.inf
-            for j in range(16):
-                beta = TWO_PI * j / 16
-                if self.reverse:
-                    # the goal in the start's frame: rotate (far, 0) by -alpha
-                    c = curves.rs_cost(far * math.cos(alpha), -far * math.sin(alpha), beta - alpha, self.r,
-                                       self.reverse_cost)
-                else:
-                    c = curves.path_length(curves.dubins((0.0, 0.0, alpha), (far, 0.0, beta), self.r))
-                best = min(best, c)
-            out.append(max(0.0, best - far))
-        return out
 
     # -------------------------------------------------------------- heuristic
     def _free_2d(self) -> np.ndarray:
