@@ -94,7 +94,8 @@ def summary(rows: List[Dict], runs: List[Dict], columns: Sequence[Tuple[str, str
     ncols = min(3, len(used))
     nrows = math.ceil(len(used) / ncols)
     height = 0.8 + 0.32 * len(names)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, height * nrows + 0.6), squeeze=False)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, height * nrows + 0.3), squeeze=False,
+                             layout="constrained")  # the title's room too (tight_layout overlaps it)
     for ax, (key, header, unit) in zip(axes.flat, used):
         for i, (name, row) in enumerate(zip(names, rows)):
             vals = [r[key] for r in runs if r.get("scenario") == name and isinstance(r.get(key), (int, float))
@@ -113,7 +114,6 @@ def summary(rows: List[Dict], runs: List[Dict], columns: Sequence[Tuple[str, str
     for ax in list(axes.flat)[len(used):]:
         ax.set_visible(False)
     fig.suptitle(f"{title}: each seed a dot, the mean a bar", fontsize=10)
-    fig.tight_layout()
     return _png(fig)
 
 
