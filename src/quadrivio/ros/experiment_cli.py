@@ -438,6 +438,12 @@ class Runner:
         return behind(out, got, before, quiet), out
 
     def stop(self) -> None:
+        import rospy
+
+        if rospy.core.is_initialized() and not rospy.is_shutdown():
+            # this node leaves while the master it registered with is up (after it, rospy's
+            # exit handler warned "cannot unregister with master due to network issues")
+            rospy.signal_shutdown("the run is over")
         bag = getattr(self, "bag", None)
         order = ([bag] if bag is not None else []) + [p for p in reversed(self.procs) if p is not bag]
         for p in order:  # the recorder first: it closes the bag on SIGINT
