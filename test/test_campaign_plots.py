@@ -94,6 +94,17 @@ def test_a_closed_loop_run_keeps_its_track_stops_and_actors(dog_campaign):
     assert fig["protective_stops"] == 1
 
 
+def test_a_notable_run_gets_its_own_plots_and_a_plain_one_by_request():
+    """--run-plots notable (the default): a run that did not complete, touched a body or
+    stopped for nothing gets its folder's plots; the others only on --run-plots all."""
+    ok = {"end": "completed", "collisions": 0, "false_stops": 0}
+    assert not campaign.notable(ok) and not campaign.notable(dict(ok, collisions=None))
+    assert campaign.notable(dict(ok, end="not completed")) and campaign.notable(dict(ok, completed=0.0))
+    assert not campaign.notable(dict(ok, completed=1.0))
+    assert campaign.notable(dict(ok, collisions=1)) and campaign.notable(dict(ok, false_stops=2))
+    assert campaign.parse(["rtk", "--out", "x", "--closed-loop"]).run_plots == "notable"
+
+
 def test_a_closed_loop_campaign_writes_its_table_tracks_and_errors(dog_campaign):
     out, _, written = dog_campaign
     assert written == ["campaign.png", "dog_short_errors.png", "dog_short_tracks.png"]
@@ -102,3 +113,5 @@ def test_a_closed_loop_campaign_writes_its_table_tracks_and_errors(dog_campaign)
     img = matplotlib.image.imread(str(out / "dog_short_tracks.png"))
     assert _ink(img, (1.0, 0.0, 0.0), 0.1) > 20  # its stop drawn
     assert not [f for f in os.listdir(out) if f.startswith(".")]  # nothing half-written left
+    # the dog stays in the lane: the run ends on its time limit short of the goal, so notable
+    assert (out / "runs" / "dog_short_s0" / "trajectory.png").stat().st_size > 20000

@@ -86,6 +86,8 @@ def test_write_run_writes_the_experiment_keys_and_plots(tmp_path):
 @pytest.mark.parametrize("argv, message", [
     (["--ros"], "--ros and --rtf go with --closed-loop"),
     (["--closed-loop", "--rtf", "2"], "--closed-loop --ros"),
+    (["--run-plots", "all"], "--run-plots goes with --closed-loop in one process"),
+    (["--closed-loop", "--ros", "--run-plots", "none"], "--run-plots goes with --closed-loop in one process"),
 ])
 def test_campaign_refuses_options_that_do_not_go_together(argv, message, capsys):
     from quadrivio import campaign

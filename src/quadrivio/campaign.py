@@ -4,8 +4,8 @@ Each run is either *offline* (default: :mod:`quadrivio.offline`, the simulator c
 sensor models and the smoother in one process, the follower on the ground truth: every
 estimator sees the same readings), *closed loop* (``--closed-loop``:
 :mod:`quadrivio.closed_loop`, the whole stack in one process, the follower on the
-estimate, as fast as a core goes; ``runs/<scenario>_s<seed>/`` holds its metrics.json and
-plots) or *closed loop through ROS* (``--closed-loop --ros``: ``experiment`` per run, the
+estimate, as fast as a core goes; ``runs/<scenario>_s<seed>/`` holds its metrics.json, and
+its plots if it is notable, see ``--run-plots``) or *closed loop through ROS* (``--closed-loop --ros``: ``experiment`` per run, the
 ROS stack on its own master, for what only ROS can show). Runs are tasks on Dask distributed: a local cluster of ``--workers`` processes
 by default, or the scheduler at ``--scheduler ADDRESS`` (``python3 -m distributed.cli.dask_scheduler``
 on one machine, ``python3 -m distributed.cli.dask_worker ADDRESS`` on each of the others, all with
@@ -164,20 +164,32 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
     return fig
 
 
-def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
-    """One closed-loop run in this process (:mod:`quadrivio.closed_loop`; a Dask task)."""
+def notable(fig: Dict) -> bool:
+    """A closed-loop run worth its own plots: it did not complete, touched a body, or the
+    guard stopped it for nothing."""
+    return (fig.get("end") != "completed" or fig.get("completed") == 0.0  # its run, or its path, unfinished
+            or bool(fig.get("collisions")) or bool(fig.get("false_stops")))
+
+
+def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float, run_plots: str = "notable") -> Dict:
+    """One closed-loop run in this process (:mod:`quadrivio.closed_loop`; a Dask task). Its
+    folder gets its plots as ``run_plots`` says: ``all``, ``notable`` runs only
+    (:func:`notable`), or ``none`` (they cost a quarter of a figure eight's CPU)."""
     from . import closed_loop
+    from .plots import all_plots
 
     s = load_scenario(scenario_path)
     folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
     r = closed_loop.run(s, seed)
-    m = closed_loop.write_run(r, s, seed, folder)
+    m = closed_loop.write_run(r, s, seed, folder, plots=False)
     _write_series(out_dir, s.name, seed, r.run)
     done = m.get("completed")
     if done is None or s.run.end == "duration":
         done = r.outcome == "completed"
     fig = _closed_loop_figures(s, seed, m, bool(done))
     fig.update(sim_s=r.sim_s, cpu_s=r.cpu_s)
+    if run_plots == "all" or (run_plots == "notable" and notable(fig)):
+        all_plots(r.run, folder, f"{s.name}, seed {seed} (in process)")
     return fig
 
 
@@ -334,6 +346,10 @@ def parse(argv):
     p.add_argument("--workers", type=int, default=None, help="local cluster processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, help="address of a Dask scheduler instead of a local cluster")
     p.add_argument("--settle", type=float, default=20.0, help="[s] error statistics start here (default 20)")
+    p.add_argument("--run-plots", choices=("notable", "all", "none"), default=None,
+                   help="--closed-loop: which runs get their own plots in runs/<scenario>_s<seed>/: notable (default: "
+                        "not completed, a contact or a false stop), all, or none; the campaign's own plots show "
+                        "every run (--ros: experiment plots every run)")
     args = p.parse_args(argv)
     if args.seeds < 1 or args.first_seed < 0:
         p.error("--seeds must be at least 1 and --first-seed non-negative")
@@ -348,6 +364,10 @@ def parse(argv):
                 "goes as fast as its core)")
     if args.rtf is not None and not (0.0 <= args.rtf <= 100.0):
         p.error("--rtf must be within [0, 100]")
+    if args.run_plots is not None and (args.ros or not args.closed_loop):
+        p.error("--run-plots goes with --closed-loop in one process (offline runs have no plots of their own; "
+                "--ros runs are experiments, each plotted)")
+    args.run_plots = args.run_plots or "notable"
     return args
 
 
@@ -410,7 +430,7 @@ def main(argv=None) -> int:
             for s, seed, digest in jobs:
                 if args.closed_loop and not args.ros:
                     fut = client.submit(run_in_process, s.path, seed, os.path.abspath(args.out), args.settle,
-                                        pure=False)
+                                        args.run_plots, pure=False)
                 elif args.closed_loop:
                     fut = client.submit(run_closed_loop, s.path, seed, os.path.abspath(args.out), args.settle,
                                         args.rtf, pure=False)

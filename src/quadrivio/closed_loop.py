@@ -629,9 +629,11 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                             rec.log, counters)
 
 
-def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None) -> Dict[str, object]:
-    """``out/metrics.json`` (the keys ``experiment`` writes, and this process's CPU), the plots,
-    ``run_info.json`` and ``log.txt`` of a run; each file complete or absent."""
+def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None,
+              plots: bool = True) -> Dict[str, object]:
+    """``out/metrics.json`` (the keys ``experiment`` writes, and this process's CPU), the plots
+    (unless ``plots`` is false), ``run_info.json`` and ``log.txt`` of a run; each file complete
+    or absent."""
     import datetime as dt
     import json
     import os
@@ -660,5 +662,6 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
                                      "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")},
                                     indent=2, default=float) + "\n")
     put("log.txt", "".join(f"{t:9.3f} {line}\n" for t, line in r.log))
-    all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")
+    if plots:
+        all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")
     return m
