@@ -176,7 +176,6 @@ def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float, r
     folder gets its plots as ``run_plots`` says: ``all``, ``notable`` runs only
     (:func:`notable`), or ``none`` (they cost a quarter of a figure eight's CPU)."""
     from . import closed_loop
-    from .plots import all_plots
 
     s = load_scenario(scenario_path)
     folder = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
@@ -189,7 +188,7 @@ def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float, r
     fig = _closed_loop_figures(s, seed, m, bool(done))
     fig.update(sim_s=r.sim_s, cpu_s=r.cpu_s)
     if run_plots == "all" or (run_plots == "notable" and notable(fig)):
-        all_plots(r.run, folder, f"{s.name}, seed {seed} (in process)")
+        closed_loop.plot_run(r, s, seed, folder)
     return fig
 
 
@@ -316,13 +315,13 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
             if os.path.exists(path):
                 with np.load(path) as d:
                     series.append((seed, {k: d[k] for k in d.files}))
-        grid = None
-        if map_file(s):
+        grid, file = None, map_file(s)
+        if file:
             from quadrivio_navigation.maps import load_map
 
-            grid = load_map(map_file(s))
-        path = s.data.get("path") or {}
-        goal = path.get("goal") if isinstance(path, dict) and path.get("kind") == "goal" else None
+            grid = load_map(file)
+        spec = s.data.get("path") or {}
+        goal = spec.get("goal") if isinstance(spec, dict) and spec.get("kind") == "goal" else None
         png = campaign_plots.tracks(s.name, series, grid, goal)
         if png is not None:
             _atomic_write(os.path.join(out, f"{s.name}_tracks.png"), png)

@@ -23,7 +23,6 @@ import numpy as np
 from .metrics import RunData, gps_errors, position_errors
 
 TRACK_STEP = 0.1  # [s] the true track kept at this spacing (a 150 s run: 1500 points)
-KIND_COLOURS = {"person": "tab:red", "animal": "tab:brown", "vehicle": "tab:blue", "obstacle": "dimgray"}
 
 
 def _plt():
@@ -127,7 +126,7 @@ def tracks(name: str, series: List[Tuple[int, Dict[str, np.ndarray]]], grid=None
         return None
     from matplotlib.patches import Polygon
 
-    from .plots import _draw_map
+    from .plots import KIND_COLOURS, _draw_goal, _draw_map
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
@@ -163,11 +162,8 @@ def tracks(name: str, series: List[Tuple[int, Dict[str, np.ndarray]]], grid=None
     xs = np.concatenate([d["x"] for _, d in series])
     ys = np.concatenate([d["y"] for _, d in series])
     if goal is not None:
-        gx, gy, gyaw = (float(v) for v in goal[:3])
-        ax.annotate("", xy=(gx + 1.5 * math.cos(gyaw), gy + 1.5 * math.sin(gyaw)), xytext=(gx, gy),
-                    arrowprops=dict(arrowstyle="->", color="tab:purple", lw=2))
-        ax.plot([gx], [gy], "o", color="tab:purple", label="goal")
-        xs, ys = np.append(xs, gx), np.append(ys, gy)
+        _draw_goal(ax, goal)
+        xs, ys = np.append(xs, float(goal[0])), np.append(ys, float(goal[1]))
     pad = 5.0
     ax.set_xlim(xs.min() - pad, xs.max() + pad)
     ax.set_ylim(ys.min() - pad, ys.max() + pad)

@@ -641,7 +641,6 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
     from quadrivio_description.vehicle import load_vehicle
 
     from . import metrics as metrics_mod
-    from .plots import all_plots
 
     v = vehicle if vehicle is not None else scenario_vehicle(s, load_vehicle())
     m = metrics_mod.compute(r.run, s.name, seed, r.wall_s, v)
@@ -663,5 +662,12 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
                                     indent=2, default=float) + "\n")
     put("log.txt", "".join(f"{t:9.3f} {line}\n" for t, line in r.log))
     if plots:
-        all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")
+        plot_run(r, s, seed, out)
     return m
+
+
+def plot_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str) -> List[str]:
+    """A run's plots (trajectory, errors, control, calibration, guard) in ``out``."""
+    from .plots import all_plots
+
+    return all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")

@@ -32,6 +32,17 @@ def _draw_map(ax, grid) -> None:
         ax.plot(px, py, "s", color="k", ms=1, zorder=0)
 
 
+KIND_COLOURS = {"person": "tab:red", "animal": "tab:brown", "vehicle": "tab:blue", "obstacle": "dimgray"}
+
+
+def _draw_goal(ax, goal) -> None:
+    """The goal (x, y, yaw): a dot and an arrow along its heading."""
+    gx, gy, gyaw = (float(v) for v in goal[:3])
+    ax.annotate("", xy=(gx + 1.5 * math.cos(gyaw), gy + 1.5 * math.sin(gyaw)), xytext=(gx, gy),
+                arrowprops=dict(arrowstyle="->", color="tab:purple", lw=2))
+    ax.plot([gx], [gy], "o", color="tab:purple", label="goal")
+
+
 def _draw_actors(ax, run: RunData) -> None:
     """Scenario obstacles filled, actors' tracks dotted with their outline where they ended."""
     if not run.actors:
@@ -48,8 +59,7 @@ def _draw_actors(ax, run: RunData) -> None:
     for name, bs in tracks.items():
         last = bs[-1]
         kind = last[1]
-        colour = {"person": "tab:red", "animal": "tab:brown", "vehicle": "tab:blue", "obstacle": "dimgray"}.get(
-            kind, "tab:gray")
+        colour = KIND_COLOURS.get(kind, "tab:gray")
         xy = np.array([(b[3], b[4]) for b in bs])
         if np.ptp(xy[:, 0]) + np.ptp(xy[:, 1]) > 0.05:
             ax.plot(xy[:, 0], xy[:, 1], ":", color=colour, lw=1.0)
@@ -127,10 +137,7 @@ def trajectory(run: RunData, path: str, title: str) -> None:
         label = "planned path" if run.goal is not None else "reference path"
         ax.plot(run.path[:, 0], run.path[:, 1], "k--", lw=1.2, label=label)
     if run.goal is not None:
-        gx, gy, gyaw = run.goal
-        ax.annotate("", xy=(gx + 1.5 * math.cos(gyaw), gy + 1.5 * math.sin(gyaw)), xytext=(gx, gy),
-                    arrowprops=dict(arrowstyle="->", color="tab:purple", lw=2))
-        ax.plot([gx], [gy], "o", color="tab:purple", label="goal")
+        _draw_goal(ax, run.goal)
         if run.footprint is not None and len(run.ground_truth):
             from matplotlib.patches import Polygon
 
