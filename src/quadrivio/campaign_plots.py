@@ -126,7 +126,7 @@ def tracks(name: str, series: List[Tuple[int, Dict[str, np.ndarray]]], grid=None
         return None
     from matplotlib.patches import Polygon
 
-    from .plots import KIND_COLOURS, _draw_goal, _draw_map
+    from .plots import KIND_COLOURS, _draw_goal, _draw_map, _frame
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
@@ -164,14 +164,11 @@ def tracks(name: str, series: List[Tuple[int, Dict[str, np.ndarray]]], grid=None
     if goal is not None:
         _draw_goal(ax, goal)
         xs, ys = np.append(xs, float(goal[0])), np.append(ys, float(goal[1]))
-    pad = 5.0
-    ax.set_xlim(xs.min() - pad, xs.max() + pad)
-    ax.set_ylim(ys.min() - pad, ys.max() + pad)
-    ax.set_aspect("equal", adjustable="datalim")
+    wide = _frame(ax, xs, ys)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_title(f"{name}: true tracks of {len(series)} seed(s)")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=7)
+    ax.legend(loc="best", fontsize=7, ncol=2 if wide else 1)
     fig.tight_layout()
     return _png(fig)

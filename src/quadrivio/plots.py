@@ -32,6 +32,27 @@ def _draw_map(ax, grid) -> None:
         ax.plot(px, py, "s", color="k", ms=1, zorder=0)
 
 
+def _frame(ax, xs, ys, pad: float = 5.0) -> bool:
+    """Frame a track on a map: the axes hold ``xs``, ``ys`` [m] and ``pad`` around them at
+    equal scale, and the figure takes the frame's shape, so that a run along a wide map (an
+    orchard's rows, 50 m by 15) fills the picture instead of a square that is mostly empty
+    map. True when the frame is wide (a legend of two columns fits it better)."""
+    x0, x1 = float(np.min(xs)) - pad, float(np.max(xs)) + pad
+    y0, y1 = float(np.min(ys)) - pad, float(np.max(ys)) + pad
+    aspect = (y1 - y0) / (x1 - x0)
+    wide = aspect < 0.6
+    width = 10.0 if wide else 7.5  # [in]
+    chrome = 1.3  # [in] the title, the tick labels and the axis labels
+    height = float(np.clip(width * aspect + chrome, 4.5, 9.5))
+    if width * aspect + chrome > 9.5:  # tall and narrow: narrow the figure instead
+        width = float(max(5.0, (9.5 - chrome) / aspect + 1.0))
+    ax.figure.set_size_inches(width, height)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal", adjustable="datalim")
+    return wide
+
+
 KIND_COLOURS = {"person": "tab:red", "animal": "tab:brown", "vehicle": "tab:blue", "obstacle": "dimgray"}
 
 
@@ -164,18 +185,18 @@ def trajectory(run: RunData, path: str, title: str) -> None:
             pts = np.array(pts)
             ax.plot(pts[:, 0], pts[:, 1], "o", mfc="none", mec=colour, ms=7, mew=1.0,
                     label=f"GPS fixes not used: {reason} ({len(pts)})")
-    ax.set_aspect("equal", adjustable="datalim")
+    wide = False
     if run.map is not None and len(run.ground_truth):  # the map is larger than the run: frame the run
         xs = np.concatenate([run.ground_truth["x"], run.path[:, 0] if run.path is not None else []])
         ys = np.concatenate([run.ground_truth["y"], run.path[:, 1] if run.path is not None else []])
-        pad = 5.0
-        ax.set_xlim(xs.min() - pad, xs.max() + pad)
-        ax.set_ylim(ys.min() - pad, ys.max() + pad)
+        wide = _frame(ax, xs, ys)
+    else:
+        ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="best", fontsize=8, ncol=2 if wide else 1)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
