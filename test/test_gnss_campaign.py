@@ -122,7 +122,7 @@ def test_a_campaign_runs_on_the_scheduler_it_is_given(tmp_path):
 
     path = short_scenario(tmp_path)
     out = str(tmp_path / "out")
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                       silence_logs=40) as cluster:
         assert campaign.main([path, "--seeds", "2", "--out", out, "--scheduler", cluster.scheduler_address]) == 0
         assert "run_offline" in cluster.scheduler.task_prefixes  # the runs were its tasks
@@ -141,15 +141,24 @@ def test_an_unreachable_scheduler_is_named(tmp_path, capsys, monkeypatch):
     assert "tcp://127.0.0.1:9" in capsys.readouterr().err
 
 
-def test_the_local_cluster_runs_without_dasks_profiler():
+def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
     """campaign's workers: one BLAS thread and no statistical profiler (8-15 % of a run's CPU
-    for a dashboard that is not served)."""
+    for a dashboard that is not served). Two campaigns on one machine: each scheduler's HTTP
+    server on a port of its own, on loopback (Dask's default, 8787 on every interface, had
+    the second warn "Port 8787 is already in use")."""
+    import warnings
+
     from distributed import Client
 
-    with campaign.local_cluster(1) as cluster, Client(cluster) as client:
-        def worker_settings():
-            import os
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with campaign.local_cluster(1) as cluster, campaign.local_cluster(1) as other, Client(cluster) as client:
+            def worker_settings():
+                import os
 
-            import dask
-            return dask.config.get("distributed.worker.profile.enabled"), os.environ.get("OPENBLAS_NUM_THREADS")
-        assert list(client.run(worker_settings).values()) == [(False, "1")]
+                import dask
+                return dask.config.get("distributed.worker.profile.enabled"), os.environ.get("OPENBLAS_NUM_THREADS")
+            assert list(client.run(worker_settings).values()) == [(False, "1")]
+            links = cluster.dashboard_link, other.dashboard_link
+    assert not [str(w.message) for w in caught if "already in use" in str(w.message)]
+    assert links[0] != links[1] and all(link.startswith("http://127.0.0.1:") for link in links), links

@@ -98,13 +98,16 @@ def local_cluster(workers: int):
     The runs are the parallelism: one BLAS thread per worker (numpy's OpenBLAS spins a thread
     per core after each call: twice a run's CPU for nothing, see launch/stack.launch). And no
     statistical profiler: Dask's samples each worker's stack every 10 ms for a dashboard that
-    is not served here, a tenth of a closed-loop run's CPU (bench/HISTORY.md)."""
+    is not served here, a tenth of a closed-loop run's CPU (bench/HISTORY.md). The scheduler's
+    HTTP server (its health and metrics routes: Dask binds one even without a dashboard) on a
+    free loopback port: on Dask's default, 8787 on every interface, a second campaign on the
+    machine warned "Port 8787 is already in use", and the first answered the network."""
     import dask
     from distributed import LocalCluster
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers start with it
-        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                             silence_logs=40)
 
 
