@@ -19,7 +19,7 @@ from quadrivio_description.vehicle import load_vehicle
 
 from .. import metrics
 from ..plots import all_plots, format_metrics
-from .bag import NEEDED_FOR, BagError, missing_topics, read_run
+from .bag import NEEDED_FOR, BagError, missing_topics, open_bag, read_run
 
 
 def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False,
@@ -30,12 +30,13 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         from quadrivio_recordings.ros import import_map
 
         imap = import_map.load(map_file)  # a ConfigError names the file and the key
-    missing = missing_topics(bag, imap)
-    if len(missing) == len(NEEDED_FOR):
-        # nothing to compute: no metrics.json of nulls that reads like a result
-        raise BagError(f"{bag} holds none of the topics the analysis reads: {'; '.join(missing)}. A recording "
-                       f"made with other drivers' topics needs an import mapping (--map)")
-    run = read_run(bag, site, vehicle, imap)
+    with open_bag(bag, BagError) as opened:  # its index read once
+        missing = missing_topics(bag, imap, opened)
+        if len(missing) == len(NEEDED_FOR):
+            # nothing to compute: no metrics.json of nulls that reads like a result
+            raise BagError(f"{bag} holds none of the topics the analysis reads: {'; '.join(missing)}. A recording "
+                           f"made with other drivers' topics needs an import mapping (--map)")
+        run = read_run(bag, site, vehicle, imap, opened)
     info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
     info = {}
     if os.path.isfile(info_path):

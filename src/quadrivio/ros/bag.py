@@ -3,6 +3,7 @@ definitions are enough: no generated classes are needed)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter, defaultdict
 from typing import Dict, Iterable, List, Optional
@@ -78,22 +79,29 @@ def topics_for(imap=None) -> Dict[str, str]:
     return topics
 
 
-def missing_topics(path: str, imap=None) -> List[str]:
-    """The kinds of NEEDED_FOR whose topic the bag lacks, as 'topic (what is null)'."""
+def missing_topics(path: str, imap=None, bag=None) -> List[str]:
+    """The kinds of NEEDED_FOR whose topic the bag lacks, as 'topic (what is null)'.
+    ``bag``: the bag at ``path`` already open (left open)."""
     topics = topics_for(imap)
-    bag = open_bag(path, BagError)
-    with bag:
-        have = bag.get_type_and_topic_info().topics
+    with _opened(path, bag) as b:
+        have = b.get_type_and_topic_info().topics
     return [f"{topics[k]} ({why})" for k, why in NEEDED_FOR.items() if topics[k] not in have]
 
 
-def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> RunData:
-    """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state."""
+def _opened(path: str, bag=None):
+    """A context of the bag at ``path``: ``bag`` as it is (its owner closes it), or the file
+    opened here and closed on leaving. Opening reads the bag's whole index: a second of an
+    hour's recording, each time."""
+    return contextlib.nullcontext(bag) if bag is not None else open_bag(path, BagError)
+
+
+def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None) -> RunData:
+    """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state;
+    ``bag``: the bag at ``path`` already open (left open)."""
     import rosbag
 
     topics = topics_for(imap)
     role_of = {"gps": "gps", "vehicle": "state"}
-    bag = open_bag(path, BagError)
     frame = site.local_frame()
     rows: Dict[str, List[tuple]] = {k: [] for k in TOPICS}
     path_xy = None
@@ -106,7 +114,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None) -> 
     contacts = None
     decisions: List[tuple] = []  # (fix stamp, used, reason, d2) of localization/gps_decisions
     by_topic = {v: k for k, v in topics.items()}
-    with bag:
+    with _opened(path, bag) as bag:
         try:
             for topic, m, t_recv in read_messages(bag, path, list(topics.values()), error=BagError):
                 kind = by_topic[topic]
