@@ -34,3 +34,31 @@ def test_a_run_cut_short_from_outside_is_the_same_with_prefix():
     b[("/x", "/p")] = [b"1", b"9"]  # a difference inside the common part is still one
     assert [d.topic for d in compare(a, b, prefix=True)[0]] == ["/x"]
     assert [d.topic for d in compare(a, {("/x", "/p"): [b"1", b"2", b"3"]}, prefix=True)[0]] == ["/y"]  # missing
+
+
+def test_static_transforms_compare_without_their_stamps(tmp_path):
+    """robot_state_publisher stamps /tf_static with the first /clock it reads (0.02 s in one
+    lockstep run, 0.03 s in the next of the same seed): the stamps are left out, the
+    transforms themselves are not."""
+    import rosbag
+    import rospy
+    from geometry_msgs.msg import TransformStamped
+    from std_msgs.msg import String
+    from tf2_msgs.msg import TFMessage
+
+    from quadrivio.ros.bag import streams
+
+    def bag(name, stamp, x, chatter="hi"):
+        t = TransformStamped()
+        t.header.stamp, t.header.frame_id, t.child_frame_id = rospy.Time.from_sec(stamp), "base_link", "laser_front"
+        t.transform.translation.x, t.transform.rotation.w = x, 1.0
+        path = str(tmp_path / name)
+        with rosbag.Bag(path, "w") as b:
+            b.write("/tf_static", TFMessage(transforms=[t]), rospy.Time.from_sec(stamp))
+            b.write("/chatter", String(data=chatter), rospy.Time.from_sec(stamp))
+        return streams(path)
+
+    a = bag("a.bag", 0.02, 1.10)
+    assert compare(a, bag("b.bag", 0.03, 1.10))[0] == []
+    assert [d.topic for d in compare(a, bag("c.bag", 0.02, 1.20))[0]] == ["/tf_static"]  # moved: differs
+    assert [d.topic for d in compare(a, bag("d.bag", 0.02, 1.10, "ho"))[0]] == ["/chatter"]

@@ -5,7 +5,10 @@ interleaves them as the scheduler pleases; each publisher's own sequence is what
 repeat), the serialised messages in order. Topics that carry wall-clock figures
 (``/rosout``, ``/diagnostics``) are left out, and so is ``header.seq``: rospy numbers a
 latched message once per subscriber it reaches, so the field says which subscriber
-connected first, not what the node did. ROS-free: the bag side is in
+connected first, not what the node did. So are the stamps of static transforms
+(``/tf_static``): tf2 holds a static transform at every time, and robot_state_publisher,
+no lockstep member, stamps its transforms with the first /clock its one-shot timer sees
+(0.02 s in one run, 0.03 s in another of the same seed). ROS-free: the bag side is in
 :func:`quadrivio.ros.bag.streams`.
 """
 

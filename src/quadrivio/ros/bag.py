@@ -270,9 +270,25 @@ def topic_profile(bag_path: str, topics: Optional[Iterable[str]] = None, start: 
     return out
 
 
+def _static_unstamped(raw) -> bytes:
+    """A /tf_static message serialised again with its transforms' stamps (and seqs) zeroed."""
+    import io
+
+    import rospy
+
+    msg = raw[4]()
+    msg.deserialize(raw[1])
+    for t in msg.transforms:
+        t.header.stamp, t.header.seq = rospy.Time(0), 0
+    buf = io.BytesIO()
+    msg.serialize(buf)
+    return buf.getvalue()
+
+
 def streams(bag_path: str, skip: Iterable[str] = ()) -> Dict[tuple, List[bytes]]:
     """Per (topic, publisher) the serialised messages of a bag, in order, ``header.seq``
-    zeroed (:func:`quadrivio.determinism.compare`); topics in ``skip`` left out."""
+    zeroed, and the stamps of /tf_static's transforms (:func:`quadrivio.determinism.compare`);
+    topics in ``skip`` left out."""
     import rosbag
 
     skip = set(skip)
@@ -287,7 +303,13 @@ def streams(bag_path: str, skip: Iterable[str] = ()) -> Dict[tuple, List[bytes]]
                 continue
             caller = header.get("callerid", b"?")
             data = raw[1]
-            if getattr(raw[4], "_has_header", False) and len(data) >= 4:
+            if topic == "/tf_static":
+                # a static transform holds at every time (tf2 ignores its stamp); its publisher
+                # stamps it with the clock when it gets round to it: robot_state_publisher's
+                # one-shot timer reads the first /clock it sees, 0.02 or 0.03 s, which lockstep
+                # does not sequence (it is no member)
+                data = _static_unstamped(raw)
+            elif getattr(raw[4], "_has_header", False) and len(data) >= 4:
                 # header.seq is the transport's: rospy numbers a latched message once per
                 # subscriber it reaches, so it tells who connected first, not what the node did
                 data = b"\0\0\0\0" + bytes(data[4:])
