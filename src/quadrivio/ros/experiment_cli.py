@@ -108,6 +108,7 @@ class Runner:
         self.rtf = args.rtf if args.rtf is not None else self.scenario.run.rtf
         self.seed = args.seed if args.seed is not None else self.scenario.seed
         self.procs: List[subprocess.Popen] = []
+        self._ender: Optional[threading.Thread] = None  # stop()'s thread ending the launches
         self.status = None
         self.planner = None
         self.last_status_wall = None
@@ -437,7 +438,11 @@ class Runner:
             return None, before  # a node going: ask again
         return behind(out, got, before, quiet), out
 
-    def stop(self) -> None:
+    def stop(self, wait: bool = True) -> None:
+        """Stop the recorder (it closes the bag on SIGINT), then the launches, the last one
+        started first. ``wait=False``: return once the bag is closed, the launches ending on
+        a thread of their own (a few seconds of their nodes' exits, the CPU idle) while the
+        caller analyses the bag; :meth:`reap` waits for them."""
         import rospy
 
         if rospy.core.is_initialized() and not rospy.is_shutdown():
@@ -445,15 +450,31 @@ class Runner:
             # exit handler warned "cannot unregister with master due to network issues")
             rospy.signal_shutdown("the run is over")
         bag = getattr(self, "bag", None)
-        order = ([bag] if bag is not None else []) + [p for p in reversed(self.procs) if p is not bag]
-        for p in order:  # the recorder first: it closes the bag on SIGINT
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGINT)
-                try:
-                    p.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
-                    p.wait()
+        if bag is not None:
+            _interrupt(bag)
+        if self._ender is None:
+            # not a daemon: an interpreter leaving early still waits for every launch's end
+            self._ender = threading.Thread(target=lambda: [_interrupt(p) for p in reversed(self.procs)],
+                                           name="stop launches")
+            self._ender.start()
+        if wait:
+            self.reap()
+
+    def reap(self) -> None:
+        """Wait until every process of the run has ended (after :meth:`stop`)."""
+        if self._ender is not None:
+            self._ender.join()
+
+
+def _interrupt(p: subprocess.Popen, timeout: float = 30.0) -> None:
+    """SIGINT to the process's group, then SIGKILL if it has not ended within ``timeout`` s."""
+    if p.poll() is None:
+        os.killpg(p.pid, signal.SIGINT)
+        try:
+            p.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)
+            p.wait()
 
 
 def main(argv: Optional[List[str]] = None) -> int:
@@ -511,7 +532,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         outcome = "interrupted"
         runner.wall_duration = time.monotonic() - runner.wall0
     finally:
-        runner.stop()
+        runner.stop(wait=False)  # the bag closed; the launches end while it is analysed
     runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
@@ -528,6 +549,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     except BagError as exc:
         print(f"experiment: cannot analyse the run: {exc}", file=sys.stderr)
         return 2
+    finally:
+        runner.reap()
     runner.log(f"results in {runner.out}: run.bag, metrics.json, run_info.json, plots; logs in logs/")
     done = m.get("completed")
     if done is None or runner.scenario.run.end == "duration":

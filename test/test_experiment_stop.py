@@ -1,0 +1,49 @@
+"""How `experiment` ends a run: the recorder first (it closes the bag on SIGINT), then the
+launches, the last one started first; with ``stop(wait=False)`` the call returns once the
+bag is closed and the launches end on a thread while the bag is analysed (``reap`` waits
+for them). Stand-ins: shells that take a while to exit after SIGINT, as nodes do."""
+import subprocess
+import time
+
+from quadrivio.ros import experiment_cli as E
+
+
+def _slow_to_exit(name: str, seconds: float, log) -> subprocess.Popen:
+    """A process in its own session that, on SIGINT, writes its name to ``log`` and exits
+    ``seconds`` later."""
+    script = f'trap "echo {name} >> {log}; sleep {seconds}; exit 0" INT; while :; do sleep 0.05; done'
+    p = subprocess.Popen(["sh", "-c", script], start_new_session=True)
+    time.sleep(0.2)  # the trap is set before a signal can come (a shell's start-up)
+    return p
+
+
+def _runner(procs, bag) -> E.Runner:
+    r = E.Runner.__new__(E.Runner)  # the process handling alone: no scenario, no master
+    r.procs, r.bag, r._ender = procs, bag, None
+    return r
+
+
+def test_stop_returns_with_the_bag_closed_and_the_launches_ending(tmp_path):
+    log = tmp_path / "order"
+    sim, real = _slow_to_exit("sim", 0.8, log), _slow_to_exit("real", 0.8, log)
+    bag = _slow_to_exit("bag", 0.2, log)
+    runner = _runner([sim, real, bag], bag)
+    t0 = time.monotonic()
+    runner.stop(wait=False)
+    returned = time.monotonic() - t0
+    assert bag.poll() == 0  # the bag is closed when stop returns ...
+    assert sim.poll() is None  # ... and the launches are still ending
+    assert returned < 0.7, returned
+    runner.reap()
+    assert sim.poll() == 0 and real.poll() == 0
+    assert log.read_text().split() == ["bag", "real", "sim"]  # the last launch first: the master's last
+    runner.stop()  # again (experiment's error path stops, then its finally): nothing left to do
+    runner.reap()
+
+
+def test_a_launch_that_ignores_sigint_is_killed(tmp_path):
+    stuck = subprocess.Popen(["sh", "-c", 'trap "" INT; while :; do sleep 0.05; done'], start_new_session=True)
+    time.sleep(0.2)
+    t0 = time.monotonic()
+    E._interrupt(stuck, timeout=0.5)
+    assert stuck.poll() is not None and time.monotonic() - t0 < 5.0
