@@ -5,7 +5,11 @@ for them). Stand-ins: shells that take a while to exit after SIGINT, as nodes do
 import subprocess
 import time
 
+import pytest
+
 from quadrivio.ros import experiment_cli as E
+
+pytestmark = pytest.mark.wall  # how soon the launches end, on the wall clock (pytest.ini)
 
 
 def _slow_to_exit(name: str, seconds: float, log) -> subprocess.Popen:
@@ -47,3 +51,56 @@ def test_a_launch_that_ignores_sigint_is_killed(tmp_path):
     t0 = time.monotonic()
     E._interrupt(stuck, timeout=0.5)
     assert stuck.poll() is not None and time.monotonic() - t0 < 5.0
+
+
+# `rosbag record` as it is: a Python wrapper that leaves at once on SIGINT, and in its process
+# group the recorder, which then still closes the bag and renames it
+_RECORDER = r"""
+import os, signal, sys, time
+def close(*_):
+    time.sleep(float(sys.argv[3]))  # the bag's index written
+    os.rename(sys.argv[1], sys.argv[2])
+    sys.exit(0)
+signal.signal(signal.SIGINT, close)
+open(sys.argv[1], "w").close()
+while True:
+    time.sleep(0.05)
+"""
+_WRAPPER = r"""
+import subprocess, sys, time
+subprocess.Popen([sys.executable, "-c", sys.argv[1]] + sys.argv[2:])
+while True:
+    time.sleep(0.05)  # SIGINT: KeyboardInterrupt, it leaves without waiting for its child
+"""
+
+
+def _recorder(tmp_path, closing_s: float) -> subprocess.Popen:
+    import sys
+
+    active, final = tmp_path / "run.bag.active", tmp_path / "run.bag"
+    p = subprocess.Popen([sys.executable, "-c", _WRAPPER, _RECORDER, str(active), str(final), str(closing_s)],
+                         start_new_session=True)
+    deadline = time.monotonic() + 10.0
+    while not active.exists():
+        assert time.monotonic() < deadline, "the stand-in recorder did not start"
+        time.sleep(0.01)
+    time.sleep(0.2)  # its SIGINT handler is set before the file is made; the wrapper's loop is running
+    return p
+
+
+def test_stop_waits_for_the_recorder_the_wrapper_leaves_behind(tmp_path):
+    bag = _recorder(tmp_path, closing_s=0.5)
+    runner = _runner([bag], bag)
+    runner.out = str(tmp_path)
+    runner.stop(wait=False)
+    assert (tmp_path / "run.bag").exists() and not (tmp_path / "run.bag.active").exists()
+    runner.reap()
+
+
+def test_a_recorder_that_never_closes_the_bag_is_killed(tmp_path):
+    bag = _recorder(tmp_path, closing_s=3600.0)
+    E._interrupt(bag)
+    t0 = time.monotonic()
+    assert E._group_ended(bag.pid, str(tmp_path / "run.bag.active"), timeout=0.5) is False
+    assert time.monotonic() - t0 < 5.0
+    assert (tmp_path / "run.bag.active").exists()  # what it wrote is left as it was

@@ -452,6 +452,11 @@ class Runner:
         bag = getattr(self, "bag", None)
         if bag is not None:
             _interrupt(bag)
+            # `rosbag record` is a Python wrapper around the C++ recorder: on SIGINT the wrapper
+            # leaves at once, while its child still writes the bag's index and renames
+            # run.bag.active to run.bag (analysed at once, a lockstep run's bag was "not found")
+            if not _group_ended(bag.pid, os.path.join(getattr(self, "out", ""), "run.bag.active")):
+                self.log("the recorder did not close the bag within 30 s: stopped; run.bag.active is what it wrote")
         if self._ender is None:
             # not a daemon: an interpreter leaving early still waits for every launch's end
             self._ender = threading.Thread(target=lambda: [_interrupt(p) for p in reversed(self.procs)],
@@ -464,6 +469,27 @@ class Runner:
         """Wait until every process of the run has ended (after :meth:`stop`)."""
         if self._ender is not None:
             self._ender.join()
+
+
+def _group_ended(pgid: int, active: str, timeout: float = 30.0) -> bool:
+    """Wait until no process of the group ``pgid`` is left, or the file ``active`` is gone
+    (the recorder renames it when the bag is closed; an orphan's zombie may stay in the
+    group where nothing reaps it). False if neither within ``timeout`` s: the group is killed."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return True
+        if not os.path.exists(active):
+            return True
+        if time.monotonic() > deadline:
+            try:
+                os.killpg(pgid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            return False
+        time.sleep(0.02)
 
 
 def _interrupt(p: subprocess.Popen, timeout: float = 30.0) -> None:
