@@ -5,7 +5,11 @@ import threading
 import time
 import xmlrpc.client
 
+import pytest
+
 from quadrivio.ros.experiment_cli import _proxy
+
+pytestmark = pytest.mark.wall  # a timeout of 0.3 s on the wall clock (pytest.ini)
 
 
 def test_a_node_that_never_answers_costs_the_timeout_not_forever():

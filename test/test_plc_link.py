@@ -13,6 +13,8 @@ from quadrivio_sim.actuators import LowLevelControl, load_actuators
 from quadrivio_sim.paths import package_file
 from quadrivio_sim.plc_emulator import PlcLogic, PlcParams, PlcServer
 
+pytestmark = pytest.mark.wall  # sessions and refusals within deadlines on the wall clock (pytest.ini)
+
 
 KEY = b"test-key-0123456789abcdef"
 

@@ -144,6 +144,7 @@ def test_paths_are_collision_free_on_a_cluttered_field(field_planner, kind):
         assert steps.max() < 0.5  # a dense path the follower can use
 
 
+@pytest.mark.wall  # OMPL's simplification stops at its time limit: a starved process simplifies less
 def test_same_seed_same_path(field_planner):
     s, g = random_pairs(field_planner, 1, seed=9)[0]
     lattice_fixed = dataclasses.replace(PlannerParams().lattice, max_expansions=3000)

@@ -16,6 +16,8 @@ from std_msgs.msg import String
 
 from quadrivio_runtime.ros.direct import InPlaceConnection, in_place
 
+pytestmark = pytest.mark.wall  # a publisher that must not block, on the wall clock (pytest.ini)
+
 PAD = "x" * 2000
 
 

@@ -11,6 +11,8 @@ import rospy.rostime
 from quadrivio_runtime.ros import timer as T
 from quadrivio_runtime.ros.timer import guarded_timer
 
+pytestmark = pytest.mark.wall  # timer rates against the wall clock (pytest.ini)
+
 
 def wait(cond, timeout=5.0):
     done = threading.Event()

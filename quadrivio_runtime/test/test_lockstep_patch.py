@@ -23,6 +23,8 @@ from std_msgs.msg import String
 
 from quadrivio_runtime.ros import lockstep
 
+pytestmark = pytest.mark.wall  # socket threads waited for against the wall clock (pytest.ini)
+
 
 def frame(text):
     b = io.BytesIO()

@@ -18,6 +18,8 @@ from std_msgs.msg import Header, String
 
 from quadrivio_runtime.ros.receiver import Receiver
 
+pytestmark = pytest.mark.wall  # socket threads waited for against the wall clock (pytest.ini)
+
 
 def frame(text: str) -> bytes:
     b = io.BytesIO()

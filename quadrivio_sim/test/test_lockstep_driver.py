@@ -14,6 +14,8 @@ from quadrivio_sim.paths import package_file
 from quadrivio_sim.plc_emulator import PlcLogic, PlcParams, PlcServer
 from quadrivio_sim.ros import lockstep_driver
 
+pytestmark = pytest.mark.wall  # a round woken in time, on the wall clock (pytest.ini)
+
 
 @pytest.fixture
 def driver(monkeypatch):
