@@ -7,10 +7,10 @@
 # unit: pytest without the `system` marker (no ROS master) and the C++ gtests (gtest: those
 # alone); system: the pytest tests that launch the stack through the user's commands (those
 # in lockstep or in one process, then the free-running ones); rostest: every rostest.
-# all, what `make test` runs: the unit tests a wall clock judges (marker `wall`), the
-# lockstep system tests, then the free-running system tests and the rostests that share the
-# machine, with the C++ and the other unit tests in the background on the CPU they leave
-# idle, then the rostests that want the machine alone.
+# all, what `make test` runs: the unit tests a wall clock judges (marker `wall`), with the
+# lockstep system tests in the background; then the free-running system tests and the
+# rostests that share the machine, with the C++ and the other unit tests in the background
+# on the CPU they leave idle; then the rostests that want the machine alone.
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
@@ -56,9 +56,10 @@ run_gtest() {
 }
 
 run_lockstep() {
-  # runs in lockstep or in one process do not depend on the machine's speed: one per core
+  # runs in lockstep or in one process do not depend on the machine's speed: one per core,
+  # the tests that read the same runs in their xdist_group
   printf '\n[test] system tests in lockstep or in one process (pytest -m "system and lockstep")\n'
-  if ! python3 -m pytest -q -m "system and lockstep" -n "$(nproc)" --dist load --durations=4; then
+  if ! python3 -m pytest -q -m "system and lockstep" -n "$(nproc)" --dist loadgroup --durations=5; then
     failed+=("system tests (lockstep)")
   fi
 }
@@ -179,8 +180,11 @@ run_rostests() {  # shared|alone: the rostests that share the machine, or those 
 
 case "$mode" in
   all)
+    # the unit tests a wall clock judges mostly wait (a third of a core): the lockstep runs
+    # take the rest of the machine meanwhile
+    start_background run_lockstep
     run_unit_wall
-    run_lockstep
+    wait_background
     start_background run_gtest run_unit_rest
     run_free
     run_rostests shared
