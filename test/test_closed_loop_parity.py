@@ -24,21 +24,26 @@ from quadrivio.metrics import PLANNED_KEYS
 pytestmark = [pytest.mark.system, pytest.mark.lockstep]
 
 
-def _ros(scenario, out, seed):
-    r = subprocess.run(["rosrun", "quadrivio", "experiment", scenario, "--out", str(out), "--seed", str(seed),
-                        "--lockstep", "--rtf", "0", "--wall-timeout", "400"], capture_output=True, text=True,
-                       timeout=600)
-    assert r.returncode in (0, 1), r.stdout[-3000:] + r.stderr[-3000:]
-    return json.loads((out / "metrics.json").read_text())
-
-
-def _in_process(scenario, out, seed):
-    r = subprocess.run(["rosrun", "quadrivio", "campaign", scenario, "--seeds", "1", "--first-seed", str(seed),
-                        "--closed-loop", "--workers", "1", "--out", str(out)], capture_output=True, text=True,
-                       timeout=600)
-    assert r.returncode in (0, 1), r.stdout[-3000:] + r.stderr[-3000:]
+def _both(scenario, folder, seed):
+    """The scenario's metrics in ROS lockstep (``experiment --lockstep``) and in one process
+    (``campaign --closed-loop``), the two made at once (neither depends on the machine's speed)."""
+    ros, inp = folder / "ros", folder / "inp"
+    cmds = [["rosrun", "quadrivio", "experiment", scenario, "--out", str(ros), "--seed", str(seed), "--lockstep",
+             "--rtf", "0", "--wall-timeout", "500"],
+            ["rosrun", "quadrivio", "campaign", scenario, "--seeds", "1", "--first-seed", str(seed), "--closed-loop",
+             "--workers", "1", "--out", str(inp)]]
+    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+    try:
+        outs = [p.communicate(timeout=700) for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    for p, (stdout, stderr) in zip(procs, outs):
+        assert p.returncode in (0, 1), stdout[-3000:] + stderr[-3000:]
     name = yaml.safe_load(open(scenario))["name"]
-    return json.loads((out / "runs" / f"{name}_s{seed}" / "metrics.json").read_text())
+    return (json.loads((ros / "metrics.json").read_text()),
+            json.loads((inp / "runs" / f"{name}_s{seed}" / "metrics.json").read_text()))
 
 
 def _close(a, b, rel):
@@ -48,8 +53,7 @@ def _close(a, b, rel):
 def test_the_figure_eight_in_one_process_as_in_ros(tmp_path):
     from quadrivio.scenario import resolve
 
-    ros, inp = _ros(resolve("figure_eight"), tmp_path / "ros", 0), _in_process(resolve("figure_eight"),
-                                                                              tmp_path / "inp", 0)
+    ros, inp = _both(resolve("figure_eight"), tmp_path, 0)
     assert ros["completed"] is True and inp["completed"] is True
     assert inp["runner"] == "in_process" and inp["sim_s_per_cpu_s"] > 1.0
     for key in ("loc_rmse_m", "pred_rmse_m", "xte_rmse_m"):
@@ -67,7 +71,7 @@ def test_the_orchard_in_one_process_as_in_ros(tmp_path):
     data.setdefault("planner", {}).update({"budget": 120.0, "lattice": {"max_expansions": 300000}})
     scenario = tmp_path / "orchard_parity.yaml"
     scenario.write_text(yaml.safe_dump(data))
-    ros, inp = _ros(str(scenario), tmp_path / "ros", 0), _in_process(str(scenario), tmp_path / "inp", 0)
+    ros, inp = _both(str(scenario), tmp_path, 0)
     assert ros["completed"] is True and inp["completed"] is True
     assert ros["collisions"] == inp["collisions"] == 0
     assert abs(ros["goal_position_error_m"] - inp["goal_position_error_m"]) <= 0.1
