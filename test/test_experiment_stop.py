@@ -32,12 +32,12 @@ def test_stop_returns_with_the_bag_closed_and_the_launches_ending(tmp_path):
     sim, real = _slow_to_exit("sim", 0.8, log), _slow_to_exit("real", 0.8, log)
     bag = _slow_to_exit("bag", 0.2, log)
     runner = _runner([sim, real, bag], bag)
-    t0 = time.monotonic()
     runner.stop(wait=False)
-    returned = time.monotonic() - t0
     assert bag.poll() == 0  # the bag is closed when stop returns ...
-    assert sim.poll() is None  # ... and the launches are still ending
-    assert returned < 0.7, returned
+    # ... and the launches are still ending: the first of them is signalled once the bag is
+    # closed and takes 0.8 s to exit (not a time limit on stop: a loaded machine took 0.82 s
+    # to run the bag stand-in's trap)
+    assert real.poll() is None and sim.poll() is None
     runner.reap()
     assert sim.poll() == 0 and real.poll() == 0
     assert log.read_text().split() == ["bag", "real", "sim"]  # the last launch first: the master's last
