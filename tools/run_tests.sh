@@ -168,7 +168,7 @@ run_rostests() {  # shared|alone: the rostests that share the machine, or those 
     # every job but the background's
     for p in $(jobs -rp | grep -vx -e "${BACKGROUND_PID:-none}"); do wait "$p"; done
   else
-    [ ${#alone[@]} -gt 0 ] && printf '\n[test] the %d rostests that want the machine alone\n' "${#alone[@]}"
+    [ ${#alone[@]} -gt 0 ] && printf '\n[test] the rostests that want the machine alone: %d\n' "${#alone[@]}"
     i=$(( ${#tests[@]} - ${#alone[@]} ))
     for t in "${alone[@]}"; do
       i=$((i + 1))
