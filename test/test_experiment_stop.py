@@ -21,9 +21,9 @@ def _slow_to_exit(name: str, seconds: float, log) -> subprocess.Popen:
     return p
 
 
-def _runner(procs, bag) -> E.Runner:
+def _runner(procs, bag, out) -> E.Runner:
     r = E.Runner.__new__(E.Runner)  # the process handling alone: no scenario, no master
-    r.procs, r.bag, r._ender = procs, bag, None
+    r.procs, r.bag, r._ender, r.out = procs, bag, None, str(out)
     return r
 
 
@@ -31,7 +31,7 @@ def test_stop_returns_with_the_bag_closed_and_the_launches_ending(tmp_path):
     log = tmp_path / "order"
     sim, real = _slow_to_exit("sim", 0.8, log), _slow_to_exit("real", 0.8, log)
     bag = _slow_to_exit("bag", 0.2, log)
-    runner = _runner([sim, real, bag], bag)
+    runner = _runner([sim, real, bag], bag, tmp_path)
     runner.stop(wait=False)
     assert bag.poll() == 0  # the bag is closed when stop returns ...
     # ... and the launches are still ending: the first of them is signalled once the bag is
@@ -90,8 +90,7 @@ def _recorder(tmp_path, closing_s: float) -> subprocess.Popen:
 
 def test_stop_waits_for_the_recorder_the_wrapper_leaves_behind(tmp_path):
     bag = _recorder(tmp_path, closing_s=0.5)
-    runner = _runner([bag], bag)
-    runner.out = str(tmp_path)
+    runner = _runner([bag], bag, tmp_path)
     runner.stop(wait=False)
     assert (tmp_path / "run.bag").exists() and not (tmp_path / "run.bag.active").exists()
     runner.reap()

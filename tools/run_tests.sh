@@ -76,11 +76,12 @@ run_free() {
 # What needs no CPU it is not given runs beside what is timed against the wall clock, on
 # the CPU the timed tests leave idle: the free-running stacks and the rostests keep their
 # share of the machine (the scheduler's SCHED_IDLE class never takes CPU from a normal
-# process; the idle I/O class, where the disk's scheduler honours it, the disk), while the C++ tests and the unit tests that no wall
-# clock judges take the rest. (The lockstep runs do not go there: their loopback traffic,
-# a quarter of the machine in the kernel, slowed the free-running stacks by 5 %.) The
-# background's output goes to a file and is shown whole when it ends; the rostests that
-# want the machine alone wait for it. Failures come back in a file, one per line.
+# process; the idle I/O class, where the disk's scheduler honours it, the disk), while the
+# C++ tests and the unit tests that no wall clock judges take the rest. (The lockstep runs
+# do not go there: their loopback traffic, a quarter of the machine in the kernel, slowed
+# the free-running stacks by 5 %.) The background's output goes to a file and is shown
+# whole when it ends; the rostests that want the machine alone wait for it. Failures come
+# back in a file, one per line.
 BACKGROUND_PID=
 start_background() {  # function...: run them, in order, in the background at idle priority
   local out="$LOGS/background.out"

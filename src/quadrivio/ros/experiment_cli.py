@@ -455,7 +455,7 @@ class Runner:
             # `rosbag record` is a Python wrapper around the C++ recorder: on SIGINT the wrapper
             # leaves at once, while its child still writes the bag's index and renames
             # run.bag.active to run.bag (analysed at once, a lockstep run's bag was "not found")
-            if not _group_ended(bag.pid, os.path.join(getattr(self, "out", ""), "run.bag.active")):
+            if not _group_ended(bag.pid, os.path.join(self.out, "run.bag.active")):
                 self.log("the recorder did not close the bag within 30 s: stopped; run.bag.active is what it wrote")
         if self._ender is None:
             # not a daemon: an interpreter leaving early still waits for every launch's end
