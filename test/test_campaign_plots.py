@@ -115,3 +115,40 @@ def test_a_closed_loop_campaign_writes_its_table_tracks_and_errors(dog_campaign)
     assert not [f for f in os.listdir(out) if f.startswith(".")]  # nothing half-written left
     # the dog stays in the lane: the run ends on its time limit short of the goal, so notable
     assert (out / "runs" / "dog_short_s0" / "trajectory.png").stat().st_size > 20000
+
+
+class _InlineClient:
+    """Dask's submit and gather, run at once in this process (the workers' path)."""
+
+    def __init__(self):
+        self.submitted = []
+
+    def submit(self, fn, *args, pure=True):
+        self.submitted.append(fn.__name__)
+        return fn(*args)
+
+    def gather(self, futures):
+        return list(futures)
+
+
+class _LostClient:
+    def submit(self, fn, *args, pure=True):
+        raise OSError("the workers are gone")
+
+
+def test_the_workers_draw_the_same_plots_and_a_lost_cluster_leaves_them_to_this_process(dog_campaign, tmp_path):
+    """With a client each plot is a task (pure: its inputs read here, PNG bytes back); if the
+    cluster fails, this process draws them all the same."""
+    out, fig, written = dog_campaign
+    scenario = load_scenario(str(out.parent / "dog_short.yaml"))
+    rows, meta = campaign.table([fig], ["dog_short"]), {"mode": "closed loop", "seeds": [0]}
+    inline = _InlineClient()
+    for client in (inline, _LostClient()):
+        there = tmp_path / type(client).__name__
+        os.makedirs(there / "runs")
+        os.link(out / "runs" / "dog_short_s0.npz", there / "runs" / "dog_short_s0.npz")
+        names = campaign.write_plots(str(there), [scenario], [0], rows, [fig], meta, client=client)
+        assert names == written
+        for name in names:
+            assert (there / name).read_bytes() == (out / name).read_bytes(), name
+    assert inline.submitted == ["summary", "errors", "tracks"]  # every plot a task

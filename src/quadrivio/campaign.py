@@ -263,61 +263,29 @@ def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> No
                   json.dumps({"meta": meta, "table": rows, "runs": runs}, indent=1, default=float).encode())
 
 
-def plot(out: str, name: str, seeds: List[int]) -> Optional[str]:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _series(out: str, name: str, seeds: List[int]) -> List:
+    """(seed, arrays) of each of a scenario's runs that left ``runs/<name>_s<seed>.npz``."""
     series = []
     for seed in seeds:
         path = os.path.join(out, "runs", f"{name}_s{seed}.npz")
         if os.path.exists(path):
             with np.load(path) as d:
-                if len(d["error"]):
-                    series.append((seed, {k: d[k] for k in ("t", "error", "gps_t", "gps_error")}))
-    if not series:
-        return None
-    fig, ax = plt.subplots(figsize=(9, 4.5))
-    for i, (seed, d) in enumerate(series):
-        ax.plot(d["gps_t"], d["gps_error"], ".", color="0.75", ms=2, label="raw GPS" if i == 0 else None)
-    for seed, d in series:
-        ax.plot(d["t"], d["error"], lw=1, label=f"seed {seed}")
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("position error [m]")
-    ax.set_title(f"{name}: smoother position error, {len(series)} seed(s)")
-    top = max(float(np.percentile(d["error"], 99.5)) for _, d in series)
-    ax.set_ylim(0, max(1e-3, 1.5 * top))
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, ncol=4, loc="upper right")
-    fig.tight_layout()
-    path = os.path.join(out, f"{name}_errors.png")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    _atomic_write(path, buf.getvalue())
-    return path
+                series.append((seed, {k: d[k] for k in d.files}))
+    return series
 
 
-def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict) -> List[str]:
-    """campaign.png (the table), and per scenario its errors and, closed loop, its tracks on
-    its map; the names of the files written."""
+def plot_jobs(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict) -> List:
+    """The campaign's plots as (file name, function, arguments): each function is pure
+    (campaign_plots) and returns the PNG's bytes or None, so that a cluster's workers can
+    draw them side by side; their inputs are read here, where the runs' files are."""
     from . import campaign_plots
     from .scenario import map_file
 
-    written = []
-    png = campaign_plots.summary(rows, runs, COLUMNS, f"{meta['mode']} campaign, seeds {meta['seeds']}")
-    if png is not None:
-        _atomic_write(os.path.join(out, "campaign.png"), png)
-        written.append("campaign.png")
+    jobs = [("campaign.png", campaign_plots.summary,
+             (rows, runs, COLUMNS, f"{meta['mode']} campaign, seeds {meta['seeds']}"))]
     for s in scenarios:
-        if plot(out, s.name, seeds):
-            written.append(f"{s.name}_errors.png")
-        series = []
-        for seed in seeds:
-            path = os.path.join(out, "runs", f"{s.name}_s{seed}.npz")
-            if os.path.exists(path):
-                with np.load(path) as d:
-                    series.append((seed, {k: d[k] for k in d.files}))
+        series = _series(out, s.name, seeds)
+        jobs.append((f"{s.name}_errors.png", campaign_plots.errors, (s.name, series)))
         grid, file = None, map_file(s)
         if file:
             from quadrivio_navigation.maps import load_map
@@ -325,10 +293,30 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
             grid = load_map(file)
         spec = s.data.get("path") or {}
         goal = spec.get("goal") if isinstance(spec, dict) and spec.get("kind") == "goal" else None
-        png = campaign_plots.tracks(s.name, series, grid, goal)
+        jobs.append((f"{s.name}_tracks.png", campaign_plots.tracks, (s.name, series, grid, goal)))
+    return jobs
+
+
+def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict,
+                client=None) -> List[str]:
+    """campaign.png (the table), and per scenario its errors and, closed loop, its tracks on
+    its map; the names of the files written. With a Dask ``client`` its workers draw them,
+    side by side (a plot is a fifth of a second of CPU, and matplotlib's import a third);
+    without one, or if that fails, this process does."""
+    jobs = plot_jobs(out, scenarios, seeds, rows, runs, meta)
+    pngs = None
+    if client is not None:
+        try:
+            pngs = client.gather([client.submit(fn, *args, pure=False) for _, fn, args in jobs])
+        except Exception as exc:  # a worker lost, say: draw them here
+            _log(f"the workers could not draw the plots ({type(exc).__name__}: {exc}); drawing them here")
+    if pngs is None:
+        pngs = [fn(*args) for _, fn, args in jobs]
+    written = []
+    for (name, _, _), png in zip(jobs, pngs):
         if png is not None:
-            _atomic_write(os.path.join(out, f"{s.name}_tracks.png"), png)
-            written.append(f"{s.name}_tracks.png")
+            _atomic_write(os.path.join(out, name), png)
+            written.append(name)
     return written
 
 
@@ -377,6 +365,48 @@ def _log(text: str) -> None:
     print(f"[campaign {time.strftime('%H:%M:%S')}] {text}", flush=True)
 
 
+def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failures: List[str]) -> float:
+    """The runs of ``jobs`` ((scenario, seed, digest)) as tasks of ``client``; each finished
+    run is written to ``runs/`` and appended to ``runs``, each failed one to ``failures``.
+    The simulated seconds of the runs made."""
+    from distributed import as_completed
+
+    wall0 = time.monotonic()
+    new_sim = 0.0
+    futures = {}
+    for s, seed, digest in jobs:
+        if args.closed_loop and not args.ros:
+            fut = client.submit(run_in_process, s.path, seed, os.path.abspath(args.out), args.settle,
+                                args.run_plots, pure=False)
+        elif args.closed_loop:
+            fut = client.submit(run_closed_loop, s.path, seed, os.path.abspath(args.out), args.settle,
+                                args.rtf, pure=False)
+        else:
+            fut = client.submit(run_offline, s.path, seed, os.path.abspath(args.out), args.settle, pure=False)
+        futures[fut] = (s, seed, digest)
+    for fut in as_completed(futures):
+        s, seed, digest = futures[fut]
+        try:
+            fig = fut.result()
+        except Exception as exc:  # one failed run is reported; the others go on
+            failures.append(f"{s.name} seed {seed}: {exc}")
+            _log(f"FAILED {s.name} seed {seed}: {exc}")
+            continue
+        fig.update(scenario_digest=digest, mode=mode, scenario_file=s.path)
+        _atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
+                      json.dumps(fig, indent=1, default=float).encode())
+        runs.append(fig)
+        new_sim += float(fig.get("sim_s") or 0.0)
+        elapsed = time.monotonic() - wall0
+        gps = fig.get("gps_rmse_m")
+        rmse = fig.get("rmse_m")
+        _log(f"{len(runs)}/{total} {s.name} seed {seed}: "
+             + (f"RMSE {rmse:.3f} m" if rmse is not None else "no estimate")
+             + (f" (raw GPS {gps:.3f} m)" if gps else "")
+             + (f", {fig['end']}" if args.closed_loop else "") + f", {elapsed:.0f} s elapsed")
+    return new_sim
+
+
 def main(argv=None) -> int:
     args = parse(sys.argv[1:] if argv is None else argv)
     try:
@@ -410,73 +440,43 @@ def main(argv=None) -> int:
     _log(f"{len(scenarios)} scenario(s) x {len(seeds)} seed(s), {mode}: {len(jobs)} to run"
          + (f", {len(runs)} already done in {args.out}" if runs else ""))
     failures = []
-    if jobs:
-        from distributed import Client, as_completed
+    client = cluster = None
+    try:
+        if jobs:
+            from distributed import Client
 
-        cluster = None
-        if args.scheduler:
-            try:
-                client = Client(args.scheduler, timeout=SCHEDULER_TIMEOUT)
-            except (OSError, TimeoutError) as exc:
-                print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within {SCHEDULER_TIMEOUT:g} s "
-                      f"({exc}); nothing run", file=sys.stderr)
-                return 2
-        else:
-            workers = args.workers or os.cpu_count() or 1
-            cluster = local_cluster(min(workers, len(jobs)))
-            client = Client(cluster)
-        wall0 = time.monotonic()
-        new_sim = 0.0  # simulated seconds of the runs made now
-        try:
-            futures = {}
-            for s, seed, digest in jobs:
-                if args.closed_loop and not args.ros:
-                    fut = client.submit(run_in_process, s.path, seed, os.path.abspath(args.out), args.settle,
-                                        args.run_plots, pure=False)
-                elif args.closed_loop:
-                    fut = client.submit(run_closed_loop, s.path, seed, os.path.abspath(args.out), args.settle,
-                                        args.rtf, pure=False)
-                else:
-                    fut = client.submit(run_offline, s.path, seed, os.path.abspath(args.out), args.settle, pure=False)
-                futures[fut] = (s, seed, digest)
-            for fut in as_completed(futures):
-                s, seed, digest = futures[fut]
+            if args.scheduler:
                 try:
-                    fig = fut.result()
-                except Exception as exc:  # one failed run is reported; the others go on
-                    failures.append(f"{s.name} seed {seed}: {exc}")
-                    _log(f"FAILED {s.name} seed {seed}: {exc}")
-                    continue
-                fig.update(scenario_digest=digest, mode=mode, scenario_file=s.path)
-                _atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
-                              json.dumps(fig, indent=1, default=float).encode())
-                runs.append(fig)
-                new_sim += float(fig.get("sim_s") or 0.0)
-                elapsed = time.monotonic() - wall0
-                gps = fig.get("gps_rmse_m")
-                rmse = fig.get("rmse_m")
-                _log(f"{len(runs)}/{total} {s.name} seed {seed}: "
-                     + (f"RMSE {rmse:.3f} m" if rmse is not None else "no estimate")
-                     + (f" (raw GPS {gps:.3f} m)" if gps else "")
-                     + (f", {fig['end']}" if args.closed_loop else "") + f", {elapsed:.0f} s elapsed")
-        except KeyboardInterrupt:
-            _log("interrupted: the finished runs are kept; run the same command to resume")
-            return 130
-        finally:
+                    client = Client(args.scheduler, timeout=SCHEDULER_TIMEOUT)
+                except (OSError, TimeoutError) as exc:
+                    print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
+                          f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
+                    return 2
+            else:
+                workers = args.workers or os.cpu_count() or 1
+                cluster = local_cluster(min(workers, len(jobs)))
+                client = Client(cluster)
+            wall0 = time.monotonic()
+            new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures)
+        runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
+        rows = table(runs, names)
+        meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios},
+                "settle_s": args.settle, "failures": failures}
+        if jobs:
+            wall = time.monotonic() - wall0
+            meta.update(wall_s=wall, sim_s=new_sim, sim_s_per_wall_s=new_sim / wall if wall > 0 else None)
+            if args.closed_loop and new_sim:
+                _log(f"{new_sim:.0f} simulated s in {wall:.0f} wall s: {new_sim / wall:.1f} simulated s per wall s")
+        write_tables(args.out, rows, runs, meta)
+        plots = write_plots(args.out, scenarios, seeds, rows, runs, meta, client=client)
+    except KeyboardInterrupt:
+        _log("interrupted: the finished runs are kept; run the same command to resume")
+        return 130
+    finally:
+        if client is not None:
             client.close()
-            if cluster is not None:
-                cluster.close()
-    runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
-    rows = table(runs, names)
-    meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios}, "settle_s": args.settle,
-            "failures": failures}
-    if jobs:
-        wall = time.monotonic() - wall0
-        meta.update(wall_s=wall, sim_s=new_sim, sim_s_per_wall_s=new_sim / wall if wall > 0 else None)
-        if args.closed_loop and new_sim:
-            _log(f"{new_sim:.0f} simulated s in {wall:.0f} wall s: {new_sim / wall:.1f} simulated s per wall s")
-    write_tables(args.out, rows, runs, meta)
-    plots = write_plots(args.out, scenarios, seeds, rows, runs, meta)
+        if cluster is not None:
+            cluster.close()
     _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json" +
          (f"; plots {', '.join(plots)}" if plots else "") + ")")
     with open(os.path.join(args.out, "campaign.md")) as f:

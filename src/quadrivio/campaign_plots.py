@@ -3,6 +3,8 @@
 * :func:`summary`: the campaign table as a picture (``campaign.png``): one panel per figure
   of the table, a row per scenario, every seed's value a dot and the mean a bar, so a seed
   that stands apart shows at once;
+* :func:`errors`: a scenario's position error over time, a line per seed
+  (``<scenario>_errors.png``);
 * :func:`tracks`: a closed-loop scenario's runs on one map (``<scenario>_tracks.png``): the
   true track of every seed, the actors' tracks and where they ended, the guard's stops and
   the contacts;
@@ -113,6 +115,30 @@ def summary(rows: List[Dict], runs: List[Dict], columns: Sequence[Tuple[str, str
     for ax in list(axes.flat)[len(used):]:
         ax.set_visible(False)
     fig.suptitle(f"{title}: each seed a dot, the mean a bar", fontsize=10)
+    return _png(fig)
+
+
+def errors(name: str, series: List[Tuple[int, Dict[str, np.ndarray]]]) -> Optional[bytes]:
+    """``<scenario>_errors.png``: the estimate's position error over time, a line per seed
+    (``series``: (seed, arrays with ``t``, ``error``, ``gps_t``, ``gps_error``)), the raw
+    GPS's error behind them."""
+    series = [(seed, d) for seed, d in series if "error" in d and len(d["error"])]
+    if not series:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for i, (seed, d) in enumerate(series):
+        ax.plot(d["gps_t"], d["gps_error"], ".", color="0.75", ms=2, label="raw GPS" if i == 0 else None)
+    for seed, d in series:
+        ax.plot(d["t"], d["error"], lw=1, label=f"seed {seed}")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_title(f"{name}: smoother position error, {len(series)} seed(s)")
+    top = max(float(np.percentile(d["error"], 99.5)) for _, d in series)
+    ax.set_ylim(0, max(1e-3, 1.5 * top))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=4, loc="upper right")
+    fig.tight_layout()
     return _png(fig)
 
 
