@@ -10,7 +10,9 @@ bench/results/closed_loop.json:
   ``pace_ms``: the same fixed work each time; the machine's speed swings 30 % in minutes);
 * ``campaign_cl_sim_s_per_wall_s``: ``campaign --closed-loop`` of the figure eight and the
   orchard, ``--seeds`` seeds each (default 2), 2 local workers: simulated seconds over the
-  campaign's wall seconds (target >= 20), and the same campaign's runs' own figures.
+  campaign's wall seconds (target >= 20), and the same campaign's runs' own figures;
+  ``campaign_cl_cpu_limit``: its limit, were the two workers' cores busy with nothing but
+  the runs (their simulated seconds over half their CPU seconds: no start-up, no plots).
 
 ``--seeds N``, ``--skip-campaign``.
 """
@@ -84,7 +86,9 @@ def campaign(seeds: int) -> dict:
     meta = c.get("meta", c)
     runs = c.get("runs", [])
     sim = sum(float(r.get("sim_s") or 0.0) for r in runs)
+    cpu = sum(float(r.get("cpu_s") or 0.0) for r in runs)
     return {"campaign_cl_sim_s_per_wall_s": sim / wall, "campaign_cl_sim_s": sim, "campaign_cl_wall_s": wall,
+            "campaign_cl_runs_cpu_s": cpu, "campaign_cl_cpu_limit": sim / (cpu / 2.0) if cpu > 0 else None,
             "campaign_cl_campaign_wall_s": meta.get("wall_s"), "campaign_cl_runs": len(runs),
             "campaign_cl_completed": sum(1 for r in runs if r.get("completed") == 1.0),
             "campaign_cl_folder": out}
@@ -109,8 +113,8 @@ def main() -> None:
         print(f"[bench closed_loop] campaign --closed-loop figure_eight orchard x {args.seeds} seeds, 2 workers",
               flush=True)
         result.update(campaign(args.seeds))
-        print(f"[bench closed_loop] campaign_cl_sim_s_per_wall_s {result['campaign_cl_sim_s_per_wall_s']:.2f}",
-              flush=True)
+        print(f"[bench closed_loop] campaign_cl_sim_s_per_wall_s {result['campaign_cl_sim_s_per_wall_s']:.2f} "
+              f"(the runs alone on two cores: {result['campaign_cl_cpu_limit'] or float('nan'):.2f})", flush=True)
     write_result("closed_loop", result)
 
 
