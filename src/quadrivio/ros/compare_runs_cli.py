@@ -1,6 +1,6 @@
 """``rosrun quadrivio compare_runs A.bag B.bag``: whether two recorded runs are the same,
-message for message, per topic and publisher (wall-clock topics left out, and each
-message's ``header.seq``, which the transport numbers: see :mod:`quadrivio.determinism`). Two ``experiment --lockstep`` runs of one seed must be.
+message for message, per topic and publisher (wall-clock topics left out, robot_state_publisher's
+/tf, and each message's ``header.seq``, which the transport numbers: see :mod:`quadrivio.determinism`). Two ``experiment --lockstep`` runs of one seed must be.
 
 Exit status: 0 the same, 1 different (each differing stream named), 2 bad input.
 """
@@ -11,7 +11,7 @@ import argparse
 import sys
 from typing import List, Optional
 
-from ..determinism import WALL_CLOCK_TOPICS, compare
+from ..determinism import NOT_SEQUENCED, WALL_CLOCK_TOPICS, compare
 from .bag import BagError, streams
 
 
@@ -34,7 +34,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     total = sum(len(v) for v in a.values())
     if not diffs:
         cut = " up to the shorter run's end" if args.prefix else ""
-        print(f"compare_runs: the same{cut}: {n} streams, {total} messages (left out: {', '.join(sorted(skip))})")
+        out = sorted(skip) + [f"{t} from {p}" for t, p in NOT_SEQUENCED if (t, p) in a or (t, p) in b]
+        total -= sum(len(a.get(k, ())) for k in NOT_SEQUENCED)
+        print(f"compare_runs: the same{cut}: {n} streams, {total} messages (left out: {', '.join(out)})")
         return 0
     print(f"compare_runs: {len(diffs)} of {n} streams differ:")
     for d in diffs:
