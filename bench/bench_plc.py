@@ -44,7 +44,14 @@ def main():
         rospy.Subscriber("/diagnostics", DiagnosticArray,
                          lambda m: latest.update({s.name: s for s in m.status}), queue_size=100)
         rospy.wait_for_service("/plc_client/set_mode", timeout=120)
-        rospy.wait_for_message("/vehicle/state", rospy.AnyMsg, timeout=120)  # the link is up
+        # the link is up: a state frame of the PLC's (without a session the client says so on
+        # vehicle/state at 10 Hz, plc_time NaN; AUTO asked for then is refused)
+        from quadrivio_plc.msg import VehicleState
+
+        deadline = time.monotonic() + 120.0
+        while not math.isfinite(rospy.wait_for_message("/vehicle/state", VehicleState, timeout=120).plc_time):
+            if time.monotonic() > deadline:
+                raise RuntimeError("no state frame from the PLC within 120 s")
         ok = rospy.ServiceProxy("/plc_client/set_mode", SetMode)(4)
         if not ok.success:
             raise RuntimeError(f"could not enter AUTO: {ok.message}")
