@@ -1,6 +1,21 @@
 """Helpers shared by the system tests."""
 
 import os
+import subprocess
+
+
+def run_at_once(cmds, timeout):
+    """Start every command of ``cmds`` at once and wait for all: (returncode, stdout, stderr)
+    of each, in order; those still running after ``timeout`` s each are killed (and the
+    TimeoutExpired raised)."""
+    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+    try:
+        outs = [p.communicate(timeout=timeout) for p in procs]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+    return [(p.returncode, stdout, stderr) for p, (stdout, stderr) in zip(procs, outs)]
 
 
 def short_scenario(folder, base="rtk", name="short_rtk", laps=1, max_duration=30.0) -> str:

@@ -14,10 +14,10 @@ no transport; planning takes no sim time in one process).
 """
 import json
 import os
-import subprocess
 
 import pytest
 import yaml
+from conftest import run_at_once
 
 from quadrivio.metrics import PLANNED_KEYS
 
@@ -32,15 +32,8 @@ def _both(scenario, folder, seed):
              "--rtf", "0", "--wall-timeout", "500"],
             ["rosrun", "quadrivio", "campaign", scenario, "--seeds", "1", "--first-seed", str(seed), "--closed-loop",
              "--workers", "1", "--out", str(inp)]]
-    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
-    try:
-        outs = [p.communicate(timeout=700) for p in procs]
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.kill()
-    for p, (stdout, stderr) in zip(procs, outs):
-        assert p.returncode in (0, 1), stdout[-3000:] + stderr[-3000:]
+    for rc, stdout, stderr in run_at_once(cmds, timeout=700):
+        assert rc in (0, 1), stdout[-3000:] + stderr[-3000:]
     name = yaml.safe_load(open(scenario))["name"]
     return (json.loads((ros / "metrics.json").read_text()),
             json.loads((inp / "runs" / f"{name}_s{seed}" / "metrics.json").read_text()))

@@ -19,6 +19,7 @@ import subprocess
 
 import pytest
 import yaml
+from conftest import run_at_once
 
 from quadrivio.scenario import resolve
 
@@ -46,22 +47,10 @@ def runs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("lockstep_runs")
     scenario = _scenario(folder)
     guards = {"cpp_a": "guard_cpp", "cpp_b": "guard_cpp", "py": "guard"}
-    procs = {}
-    for name, guard in guards.items():
-        procs[name] = subprocess.Popen(
-            ["rosrun", "quadrivio", "experiment", scenario, "--out", str(folder / name), "--seed", str(SEED),
-             "--lockstep", "--rtf", "0", "--guard", guard, "--wall-timeout", "420"],
-            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    out = {}
-    try:
-        for name, p in procs.items():
-            stdout, stderr = p.communicate(timeout=600)
-            out[name] = (folder / name, p.returncode, stdout, stderr)
-    finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.kill()
-    return out
+    done = run_at_once([["rosrun", "quadrivio", "experiment", scenario, "--out", str(folder / name), "--seed",
+                         str(SEED), "--lockstep", "--rtf", "0", "--guard", guard, "--wall-timeout", "420"]
+                        for name, guard in guards.items()], timeout=600)
+    return {name: (folder / name,) + r for name, r in zip(guards, done)}
 
 
 def _ok(run):
