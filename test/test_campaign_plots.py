@@ -32,6 +32,12 @@ def test_the_summary_has_a_panel_per_figure_and_a_dot_per_seed():
     assert img.shape[1] > 2 * img.shape[0]  # two panels side by side (rmse, completed), one row
     assert _ink(img, (0.384, 0.629, 0.797), 0.06) > 25  # the seeds' dots (tab:blue at alpha 0.7 on white)
     assert campaign_plots.summary([], [], campaign.COLUMNS, "empty") is None
+    # a name longer than a panel is wide: the margin takes it, the figure widens, nothing overlaps
+    long_runs = [dict(r, scenario=r["scenario"] * 80) for r in runs]
+    wide = _image(campaign_plots.summary(campaign.table(long_runs, ["a" * 80, "b" * 80]), long_runs,
+                                         campaign.COLUMNS, "long names"))
+    assert wide.shape[0] == img.shape[0] and wide.shape[1] > img.shape[1] + 200
+    assert _ink(wide, (0.384, 0.629, 0.797), 0.06) == _ink(img, (0.384, 0.629, 0.797), 0.06)
     assert campaign_plots.summary([{"scenario": "a", "seeds": 1}], [], campaign.COLUMNS, "no figures") is None
 
 

@@ -67,6 +67,10 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
 
 
 SCHEDULER_TIMEOUT = 10.0  # [s] to connect to --scheduler
+# What every run imports (PyBullet, GTSAM, the planner's native core): a local worker imports
+# them as it starts, while this process still reads the scenarios, not in its first run.
+WORKER_PRELOAD = ("quadrivio.campaign", "quadrivio_sim.simulator", "quadrivio_localization.smoother",
+                  "quadrivio_navigation.planning")
 
 
 class CampaignError(Exception):
@@ -106,9 +110,12 @@ def local_cluster(workers: int):
     from distributed import LocalCluster
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    # The workers' Dask loggers from warnings up, from their start: silence_logs comes later
+    # than their preloads' INFO lines (what the worker's environment says, it reads at import).
+    os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
     with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers start with it
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
-                            silence_logs=40)
+                            silence_logs=40, preload=list(WORKER_PRELOAD))
 
 
 def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
@@ -407,16 +414,45 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
     return new_sim
 
 
+def _start_cluster(args):
+    """A local cluster of ``--workers`` processes (at most one per possible run), started in a
+    thread: its workers start (a third of a second, about a core's worth of imports) while this
+    process reads and checks the scenarios (a quarter of a second of the other core); the
+    future's result is the cluster. None with ``--scheduler``."""
+    if args.scheduler:
+        return None
+    from concurrent.futures import ThreadPoolExecutor
+
+    workers = min(args.workers or os.cpu_count() or 1, len(args.scenarios) * args.seeds)
+    pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-cluster")
+    starting = pool.submit(local_cluster, workers)
+    pool.shutdown(wait=False)  # the thread ends with its one task
+    return starting
+
+
+def _close_started(starting) -> None:
+    """Close the cluster of :func:`_start_cluster` once it has started (or failed to)."""
+    if starting is None:
+        return
+    try:
+        starting.result().close()
+    except Exception:  # it never started: nothing to close
+        pass
+
+
 def main(argv=None) -> int:
     args = parse(sys.argv[1:] if argv is None else argv)
+    starting = _start_cluster(args)
     try:
         scenarios = [load_scenario(n) for n in args.scenarios]
     except ConfigError as exc:
         print(f"campaign: {exc}; nothing run", file=sys.stderr)
+        _close_started(starting)
         return 2
     names = [s.name for s in scenarios]
     if len(set(names)) != len(names):
         print(f"campaign: a scenario is named twice ({', '.join(names)}); nothing run", file=sys.stderr)
+        _close_started(starting)
         return 2
     os.makedirs(os.path.join(args.out, "runs"), exist_ok=True)
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -442,20 +478,21 @@ def main(argv=None) -> int:
     failures = []
     client = cluster = None
     try:
-        if jobs:
+        if starting is not None:  # started for the runs; with none left to run, it draws the plots
             from distributed import Client
 
-            if args.scheduler:
-                try:
-                    client = Client(args.scheduler, timeout=SCHEDULER_TIMEOUT)
-                except (OSError, TimeoutError) as exc:
-                    print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
-                          f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
-                    return 2
-            else:
-                workers = args.workers or os.cpu_count() or 1
-                cluster = local_cluster(min(workers, len(jobs)))
-                client = Client(cluster)
+            cluster = starting.result()
+            client = Client(cluster)
+        elif jobs:
+            from distributed import Client
+
+            try:
+                client = Client(args.scheduler, timeout=SCHEDULER_TIMEOUT)
+            except (OSError, TimeoutError) as exc:
+                print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
+                      f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
+                return 2
+        if jobs:
             wall0 = time.monotonic()
             new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures, wall0)
         runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
@@ -477,6 +514,8 @@ def main(argv=None) -> int:
             client.close()
         if cluster is not None:
             cluster.close()
+        elif starting is not None:  # interrupted before it was used
+            _close_started(starting)
     _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json" +
          (f"; plots {', '.join(plots)}" if plots else "") + ")")
     with open(os.path.join(args.out, "campaign.md")) as f:
