@@ -85,6 +85,8 @@ def write_result(name: str, result: dict) -> str:
         result = dict(result, pace_ms_after=pace_ms())
     if "ipc_us_after" not in result:
         result = dict(result, ipc_us_after=ipc_us())
+    # when, in the result itself (a copied file loses its time; bench/summary.py reads this)
+    result = dict(result, written_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
     os.makedirs(RESULTS, exist_ok=True)
     path = os.path.join(RESULTS, f"{name}.json")
     tmp = path + ".tmp"
