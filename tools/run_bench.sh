@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Run every benchmark (bench/bench_*.py); each writes bench/results/<name>.json.
-# Called by `make bench` with env.sh sourced. `tools/run_bench.sh sim` runs one.
+# Called by `make bench` with env.sh sourced. `tools/run_bench.sh sim` runs one. Then
+# bench/summary.py: every target against its latest result (older ones say so).
 set -uo pipefail
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$ROOT"
 mkdir -p bench/results
+since=$(date +%s)
 failed=()
 for b in bench/bench_*.py; do
   name=$(basename "$b" .py); name=${name#bench_}
@@ -17,6 +19,8 @@ for b in bench/bench_*.py; do
     failed+=("$name")
   fi
 done
+# the targets against the results (bench/targets.yaml): bench/results/summary.{md,json,png}
+python3 bench/summary.py --since "$since" || failed+=("summary")
 if [ ${#failed[@]} -gt 0 ]; then
   echo "[bench] FAILED: ${failed[*]}"
   exit 1
