@@ -76,6 +76,22 @@ def paces(when: str) -> dict:
     return {f"pace_ms_{when}": pace_ms(), f"ipc_us_{when}": ipc_us()}
 
 
+WRITTEN_FORMAT = "%Y-%m-%dT%H:%M:%SZ"  # a result's written_utc (UTC)
+
+
+def atomic_write(path: str, data: bytes) -> None:
+    """``data`` to ``path`` whole or not at all: written aside, then renamed."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
 def write_result(name: str, result: dict) -> str:
     """``bench/results/<name>.json``, with the machine's pace as it is written
     (``pace_ms_after`` and ``ipc_us_after``, unless the benchmark took its own; some take
@@ -86,14 +102,10 @@ def write_result(name: str, result: dict) -> str:
     if "ipc_us_after" not in result:
         result = dict(result, ipc_us_after=ipc_us())
     # when, in the result itself (a copied file loses its time; bench/summary.py reads this)
-    result = dict(result, written_utc=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()))
+    result = dict(result, written_utc=time.strftime(WRITTEN_FORMAT, time.gmtime()))
     os.makedirs(RESULTS, exist_ok=True)
     path = os.path.join(RESULTS, f"{name}.json")
-    tmp = path + ".tmp"
-    with open(tmp, "w") as fh:  # never a half-written result
-        json.dump(result, fh, indent=2, sort_keys=True)
-        fh.write("\n")
-    os.replace(tmp, path)
+    atomic_write(path, (json.dumps(result, indent=2, sort_keys=True) + "\n").encode())
     print(f"[bench] wrote {os.path.relpath(path, os.path.dirname(HERE))}", flush=True)
     return path
 

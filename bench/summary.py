@@ -27,6 +27,10 @@ from typing import Dict, List, Optional
 import yaml
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from common import WRITTEN_FORMAT, atomic_write  # noqa: E402
+
+EARLIER = "from an earlier run"  # a row's note when its result is older than --since
 OPS = {"<=": lambda v, t: v <= t, "<": lambda v, t: v < t, ">=": lambda v, t: v >= t, ">": lambda v, t: v > t,
        "==": lambda v, t: math.isclose(v, t, rel_tol=1e-9, abs_tol=1e-12)}
 
@@ -115,7 +119,7 @@ def _written(stamp, mtime: float) -> float:
     else, for a result from before that key, its file's time."""
     if isinstance(stamp, str):
         try:
-            return calendar.timegm(time.strptime(stamp, "%Y-%m-%dT%H:%M:%SZ"))
+            return calendar.timegm(time.strptime(stamp, WRITTEN_FORMAT))
         except ValueError:
             pass
     return mtime
@@ -159,7 +163,7 @@ def evaluate(targets: List[Target], results: str, since: Optional[float] = None)
             row.value = _number(data[t.key])
             row.met = bool(OPS[t.op](row.value, t.target))
             if since is not None and written < since:
-                row.note = "from an earlier run"
+                row.note = EARLIER
         rows.append(row)
     return rows
 
@@ -210,7 +214,7 @@ def plot(rows: List[Row]) -> bytes:
             ax.plot([1.0, x], [i, i], "-", color=colour, lw=3, alpha=0.6)
             ax.plot([x], [i], "o", color=colour, ms=5)
             text = f"{_fmt(r.value)} ({r.target.op} {_fmt(r.target.target)})"
-        if r.note == "from an earlier run":
+        if r.note == EARLIER:
             text += f", {r.when}"
         ax.text(hi * 1.15, i, text, va="center", fontsize=7)
     ax.axvline(1.0, color="k", lw=1)
@@ -230,13 +234,6 @@ def plot(rows: List[Row]) -> bytes:
     return buf.getvalue()
 
 
-def _write(path: str, data: bytes) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="bench/summary.py", description=__doc__.split("\n\n")[0])
     ap.add_argument("--targets", default=os.path.join(HERE, "targets.yaml"))
@@ -252,14 +249,14 @@ def main(argv=None) -> int:
     rows = evaluate(targets, args.results, args.since)
     md = markdown(rows)
     os.makedirs(args.results, exist_ok=True)
-    _write(os.path.join(args.results, "summary.md"), md.encode())
-    _write(os.path.join(args.results, "summary.json"), json.dumps([
+    atomic_write(os.path.join(args.results, "summary.md"), md.encode())
+    atomic_write(os.path.join(args.results, "summary.json"), json.dumps([
         {"file": r.target.file, "key": r.target.key, "op": r.target.op, "target": r.target.target,
          "source": r.target.source, "value": r.value, "met": r.met,
          "headroom": r.headroom if r.headroom is not None and math.isfinite(r.headroom) else None, "note": r.note,
          "written_utc": r.when, "pace_ms": r.pace_ms, "beside": r.beside} for r in rows],
         indent=1, default=str).encode())
-    _write(os.path.join(args.results, "summary.png"), plot(rows))
+    atomic_write(os.path.join(args.results, "summary.png"), plot(rows))
     print(md)
     print(f"[bench] wrote {os.path.relpath(os.path.join(args.results, 'summary.md'))} (and .json, .png)")
     return 0
