@@ -30,6 +30,8 @@ import threading
 import time
 from typing import Dict
 
+from quadrivio_runtime.files import atomic_write
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from common import RESULTS, machine, write_result  # noqa: E402
@@ -221,17 +223,13 @@ def main():
             result[f"f{f:g}_{k}"] = (1.0 if v else 0.0) if isinstance(v, bool) else v
     write_result("cpu", result)
     md = os.path.join(RESULTS, "cpu.md")
-    with open(md + ".tmp", "w") as fh:
-        fh.write(table(runs))
-    os.replace(md + ".tmp", md)
+    atomic_write(md, table(runs))
     print(table(runs))
     if profiles:
         text = "".join(f"## {name} (py-spy, factor {FACTORS[0]:g})\n\n{summarise(raw)}\n"
                        for name, raw in profiles.items() if os.path.exists(raw))
         path = os.path.join(RESULTS, "pyspy.md")
-        with open(path + ".tmp", "w") as fh:
-            fh.write(text)
-        os.replace(path + ".tmp", path)
+        atomic_write(path, text)
         print(text)
 
 

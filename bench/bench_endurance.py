@@ -31,6 +31,8 @@ from typing import Dict, List, Tuple
 
 import yaml
 
+from quadrivio_runtime.files import atomic_path
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from bench_cpu import run_processes  # noqa: E402
@@ -180,9 +182,9 @@ def plot(path: str, topic_rates: Dict[str, dict], memory: Dict[str, List[Tuple[f
     b.set_title("memory of the run's processes (the 10 largest)")
     b.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path + ".tmp.png", dpi=90)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
-    os.replace(path + ".tmp.png", path)
 
 
 def main():

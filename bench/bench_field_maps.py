@@ -41,6 +41,7 @@ from quadrivio_navigation.costmap import Footprint
 from quadrivio_navigation.maps import load_map
 from quadrivio_navigation.plan_cli import load_params
 from quadrivio_navigation.planning import Planner
+from quadrivio_runtime.files import atomic_path
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
@@ -210,9 +211,8 @@ def plot(path: str, shown) -> None:
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=100)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)
 
 

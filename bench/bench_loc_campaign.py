@@ -26,6 +26,8 @@ import time
 
 import numpy as np
 
+from quadrivio_runtime.files import atomic_path
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
@@ -51,11 +53,10 @@ def ours(scenario: str, seed: int, work: str) -> dict:
     fig = flatten(offline.score(r, s, SETTLE))
     cal = offline.localizer_params(s).priors.magnetometer.vectors()[0]
     path = os.path.join(work, f"{s.name}_s{seed}.npz")
-    tmp = path + ".tmp.npz"
-    np.savez_compressed(tmp, state=np.array(r.inputs.state), imu=np.array(r.inputs.imu),
-                        mag=np.array(r.inputs.mag), gps=np.array(r.inputs.gps), t_end=r.truth[-1, 0], mag_cal=cal,
-                        truth=r.truth, ours=r.estimate[:, :4])
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, state=np.array(r.inputs.state), imu=np.array(r.inputs.imu),
+                            mag=np.array(r.inputs.mag), gps=np.array(r.inputs.gps), t_end=r.truth[-1, 0],
+                            mag_cal=cal, truth=r.truth, ours=r.estimate[:, :4])
     fig["inputs"] = path
     return fig
 

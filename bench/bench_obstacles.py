@@ -50,6 +50,8 @@ import time
 import numpy as np
 import yaml
 
+from quadrivio_runtime.files import atomic_write
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from common import RESULTS, machine, write_result  # noqa: E402
@@ -397,15 +399,14 @@ def main() -> None:
               "--latency-seeds < 2): its figures go to obstacles_partial.json, not obstacles.json", flush=True)
     write_result(name, result)
     table = os.path.join(RESULTS, f"{name}.md")
-    with open(table + ".tmp", "w") as fh:
-        fh.write("| scenario | runs | completed | collisions | min clearance [m] | protective stops | false | "
-                 "anticipated | fail-safe | blocked mean [s] |\n|---|---|---|---|---|---|---|---|---|---|\n")
-        for key, row in result["per_scenario"].items():
-            mc = row["min_clearance_m"]
-            fh.write(f"| {key} | {row['runs']} | {row['completed']:.2f} | {row['collisions']} | "
+    lines = ["| scenario | runs | completed | collisions | min clearance [m] | protective stops | false | "
+             "anticipated | fail-safe | blocked mean [s] |\n|---|---|---|---|---|---|---|---|---|---|\n"]
+    for key, row in result["per_scenario"].items():
+        mc = row["min_clearance_m"]
+        lines.append(f"| {key} | {row['runs']} | {row['completed']:.2f} | {row['collisions']} | "
                      f"{'' if mc is None else f'{mc:.2f}'} | {row['protective_stops']} | {row['false_stops']} | "
                      f"{row['anticipated_stops']} | {row['fault_stops']} | {row['time_blocked_s_mean']:.1f} |\n")
-    os.replace(table + ".tmp", table)  # never a half-written table
+    atomic_write(table, "".join(lines))  # never a half-written table
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ import time
 import numpy as np
 import yaml
 
+from quadrivio_runtime.files import atomic_path
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from common import RESULTS, machine, pace_ms, write_result  # noqa: E402
@@ -145,9 +147,8 @@ def plot(t, ms, blocks, path: str) -> None:
     b.set_ylabel("process RSS [MB]")
     b.set_xlabel("simulated time [min]")
     fig.tight_layout()
-    tmp = path + ".tmp.png"
-    fig.savefig(tmp, dpi=90)
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
     plt.close(fig)
 
 

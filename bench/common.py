@@ -10,6 +10,8 @@ import subprocess
 import time
 import xmlrpc.client
 
+from quadrivio_runtime.files import atomic_write
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 
@@ -77,19 +79,6 @@ def paces(when: str) -> dict:
 
 
 WRITTEN_FORMAT = "%Y-%m-%dT%H:%M:%SZ"  # a result's written_utc (UTC)
-
-
-def atomic_write(path: str, data: bytes) -> None:
-    """``data`` to ``path`` whole or not at all: written aside, then renamed."""
-    tmp = f"{path}.tmp{os.getpid()}"
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def write_result(name: str, result: dict) -> str:

@@ -35,6 +35,7 @@ from typing import Dict, Optional
 import numpy as np
 
 from quadrivio_description.frames import quaternion_from_yaw, yaw_from_quaternion
+from quadrivio_runtime.files import atomic_path
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), ".."))
 
@@ -300,9 +301,8 @@ def main(argv=None) -> int:
     out = PeerRun(setup, load_vehicle(), load_site()).run(
         {k: d[k] for k in ("state", "imu", "mag", "gps")}, cal, float(d["t_end"]),
         log_dir=os.path.join(os.path.dirname(os.path.abspath(dst)), "peer_logs_" + os.path.basename(dst)[:-4]))
-    tmp = dst + ".tmp.npz"
-    np.savez_compressed(tmp, estimate=out)
-    os.replace(tmp, dst)
+    with atomic_path(dst) as tmp:
+        np.savez_compressed(tmp, estimate=out)
     return 0
 
 

@@ -40,13 +40,13 @@ import math
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from typing import Dict, List, Optional
 
 import numpy as np
 
 from quadrivio_config import ConfigError
+from quadrivio_runtime.files import atomic_write
 
 from .scenario import load_scenario
 
@@ -75,19 +75,6 @@ WORKER_PRELOAD = ("quadrivio.campaign", "quadrivio_sim.simulator", "quadrivio_lo
 
 class CampaignError(Exception):
     pass
-
-
-def _atomic_write(path: str, data: bytes) -> None:
-    d = os.path.dirname(path) or "."
-    fd, tmp = tempfile.mkstemp(dir=d, prefix="." + os.path.basename(path) + ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _digest(path: str) -> str:
@@ -133,7 +120,7 @@ def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> D
     np.savez_compressed(buf, t=err[:, 0], error=err[:, 1], gps_t=fixes[:, 0],
                         gps_error=np.hypot(fixes[:, 3] - fixes[:, 1], fixes[:, 4] - fixes[:, 2]))
     base = os.path.join(out_dir, "runs", f"{s.name}_s{seed}")
-    _atomic_write(base + ".npz", buf.getvalue())
+    atomic_write(base + ".npz", buf.getvalue())
     return fig
 
 
@@ -143,7 +130,7 @@ def _write_series(out_dir: str, name: str, seed: int, run) -> None:
 
     buf = io.BytesIO()
     np.savez_compressed(buf, **run_series(run))
-    _atomic_write(os.path.join(out_dir, "runs", f"{name}_s{seed}.npz"), buf.getvalue())
+    atomic_write(os.path.join(out_dir, "runs", f"{name}_s{seed}.npz"), buf.getvalue())
 
 
 def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, rtf: Optional[float]) -> Dict:
@@ -257,7 +244,7 @@ def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> No
     for r in rows:
         w.writerow([r["scenario"], r["seeds"]] + [("" if r.get(h) is None else f"{r[h]:.6g}")
                                                  for k, _, _ in used for h in (k, k + "_sd")])
-    _atomic_write(os.path.join(out, "campaign.csv"), sio.getvalue().encode())
+    atomic_write(os.path.join(out, "campaign.csv"), sio.getvalue().encode())
     md = [f"# Campaign: {', '.join(r['scenario'] for r in rows)} ({meta['mode']}, seeds {meta['seeds']})", "",
           "Mean ± standard deviation over the seeds.", "",
           "| scenario | seeds | " + " | ".join(f"{h} [{u}]" if u else h for _, h, u in used) + " |",
@@ -265,8 +252,8 @@ def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> No
     for r in rows:
         md.append(f"| {r['scenario']} | {r['seeds']} | " +
                   " | ".join(_fmt(r.get(k), r.get(k + "_sd")) for k, _, _ in used) + " |")
-    _atomic_write(os.path.join(out, "campaign.md"), ("\n".join(md) + "\n").encode())
-    _atomic_write(os.path.join(out, "campaign.json"),
+    atomic_write(os.path.join(out, "campaign.md"), ("\n".join(md) + "\n").encode())
+    atomic_write(os.path.join(out, "campaign.json"),
                   json.dumps({"meta": meta, "table": rows, "runs": runs}, indent=1, default=float).encode())
 
 
@@ -322,7 +309,7 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
     written = []
     for (name, _, _), png in zip(jobs, pngs):
         if png is not None:
-            _atomic_write(os.path.join(out, name), png)
+            atomic_write(os.path.join(out, name), png)
             written.append(name)
     return written
 
@@ -400,7 +387,7 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
             _log(f"FAILED {s.name} seed {seed}: {exc}")
             continue
         fig.update(scenario_digest=digest, mode=mode, scenario_file=s.path)
-        _atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
+        atomic_write(os.path.join(args.out, "runs", f"{s.name}_s{seed}.json"),
                       json.dumps(fig, indent=1, default=float).encode())
         runs.append(fig)
         new_sim += float(fig.get("sim_s") or 0.0)

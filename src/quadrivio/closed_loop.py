@@ -639,6 +639,7 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
     import os
 
     from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_runtime.files import atomic_write
 
     from . import metrics as metrics_mod
 
@@ -649,10 +650,7 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
     os.makedirs(out, exist_ok=True)
 
     def put(name: str, text: str) -> None:
-        tmp = os.path.join(out, f".{name}.tmp")
-        with open(tmp, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, os.path.join(out, name))
+        atomic_write(os.path.join(out, name), text)
 
     put("metrics.json", json.dumps(m, indent=2, default=float) + "\n")
     put("run_info.json", json.dumps({"scenario": s.name, "scenario_file": s.path, "seed": seed, "runner": "in_process",

@@ -8,6 +8,8 @@ from typing import Dict, List
 
 import numpy as np
 
+from quadrivio_runtime.files import atomic_path
+
 from .metrics import RunData, cross_track, following_window, gps_errors, position_errors
 
 
@@ -16,6 +18,11 @@ def _plt():
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     return plt
+
+
+def _save(fig, path: str) -> None:
+    with atomic_path(path) as tmp:  # a plot is whole or absent, even if the run is interrupted
+        fig.savefig(tmp, dpi=110, format="png")
 
 
 def _draw_map(ax, grid) -> None:
@@ -144,7 +151,7 @@ def guard(run: RunData, path: str, title: str) -> bool:
     for a in (a1, a2):
         a.grid(True, alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
     plt.close(fig)
     return True
 
@@ -198,7 +205,7 @@ def trajectory(run: RunData, path: str, title: str) -> None:
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8, ncol=2 if wide else 1)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
     plt.close(fig)
 
 
@@ -230,7 +237,7 @@ def errors(run: RunData, path: str, title: str) -> bool:
         ax.grid(True, alpha=0.3)
     axes[0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
     plt.close(fig)
     return True
 
@@ -251,7 +258,7 @@ def control(run: RunData, path: str, title: str) -> bool:
     axes[1].set_xlabel("time [s]")
     axes[0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
     plt.close(fig)
     return True
 
@@ -279,7 +286,7 @@ def calibration(run: RunData, path: str, title: str) -> bool:
         ax.set_xlabel("time [s]")
     fig.suptitle(title + " (band: 2 sigma)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    _save(fig, path)
     plt.close(fig)
     return True
 

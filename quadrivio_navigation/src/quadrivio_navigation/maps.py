@@ -51,6 +51,7 @@ from typing import Any, Dict, Optional, Tuple
 import numpy as np
 
 from quadrivio_config import ConfigError, load_yaml, param
+from quadrivio_runtime.files import atomic_write
 
 UNKNOWN = -1
 FREE = 0
@@ -444,18 +445,11 @@ def save_map(grid: OccupancyGrid, yaml_path: str, image_name: Optional[str] = No
     pix = np.flipud(pix)
     image_path = os.path.join(folder, image_name)
     header = f"P5\n{grid.width} {grid.height}\n255\n".encode("ascii")
-    _atomic_write(image_path, header + pix.tobytes())
+    atomic_write(image_path, header + pix.tobytes())
     meta = {"image": image_name, "resolution": float(grid.resolution), "origin": [float(v) for v in grid.origin],
             "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.196, "mode": "trinary"}
-    _atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode("utf-8"))
+    atomic_write(yaml_path, yaml.safe_dump(meta, sort_keys=False).encode("utf-8"))
     return yaml_path
-
-
-def _atomic_write(path: str, data: bytes) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------- obstacles (sim)

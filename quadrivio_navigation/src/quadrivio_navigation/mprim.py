@@ -42,6 +42,7 @@ from typing import List, Optional, Tuple
 import numpy as np
 
 from quadrivio_config import ConfigError
+from quadrivio_runtime.files import atomic_write
 
 from . import curves
 
@@ -221,10 +222,7 @@ def write_mprim(ps: PrimitiveSet, path: str) -> None:
                   f"endpose_c: {p.dx} {p.dy} {p.end_heading}", f"additionalactioncostmult: {mult}",
                   f"intermediateposes: {len(p.poses)}"]
         lines += [f"{x:.4f} {y:.4f} {th % TWO_PI:.4f}" for x, y, th in p.poses]
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-    os.replace(tmp, path)
+    atomic_write(path, "\n".join(lines) + "\n")
 
 
 def read_mprim(path: str) -> PrimitiveSet:

@@ -19,6 +19,7 @@ from typing import List, Optional
 
 from quadrivio_config import ConfigError
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_runtime.files import atomic_path
 
 from .mprim import GenerationParams, PrimitiveSet, check_for_vehicle, generate, write_mprim
 
@@ -44,9 +45,8 @@ def plot(ps: PrimitiveSet, path: str, radius: float) -> None:
     axes[1].set_title("start headings 0-2 (forward blue, reverse red)")
     fig.suptitle(f"{ps.resolution} m cells, turning radius {radius:.2f} m", fontsize=10)
     fig.tight_layout()
-    tmp = f"{path}.tmp{os.getpid()}"
-    fig.savefig(tmp, dpi=100, format="png")
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
 
 

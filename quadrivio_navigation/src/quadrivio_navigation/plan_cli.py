@@ -29,6 +29,7 @@ import numpy as np
 
 from quadrivio_config import ConfigError, from_mapping, load_yaml, replace_nested
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_runtime.files import atomic_path, atomic_write
 
 from .maps import load_map
 from .planning import PlannerParams, Planner, PlanResult
@@ -66,26 +67,11 @@ def load_params(files: List[str], overrides: Optional[dict] = None) -> PlannerPa
     return p
 
 
-def _atomic(path: str, write) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-
-
 def write_csv(path: str, r: PlanResult) -> None:
     s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(r.poses[:, 0]), np.diff(r.poses[:, 1])))])
 
-    def w(tmp):
-        with open(tmp, "w") as fh:
-            fh.write("x,y,yaw,direction,s\n")
-            for (x, y, th), d, si in zip(r.poses, r.directions, s):
-                fh.write(f"{x:.4f},{y:.4f},{th:.5f},{int(d)},{si:.4f}\n")
-
-    _atomic(path, w)
+    rows = [f"{x:.4f},{y:.4f},{th:.5f},{int(d)},{si:.4f}\n" for (x, y, th), d, si in zip(r.poses, r.directions, s)]
+    atomic_write(path, "x,y,yaw,direction,s\n" + "".join(rows))
 
 
 def summary(r: PlanResult, start, goal) -> dict:
@@ -160,7 +146,8 @@ def plot(path: str, planner: Planner, r: PlanResult, start, goal, title: str) ->
     ax.set_aspect("equal")
     ax.legend(loc="upper right", fontsize=7)
     fig.tight_layout()
-    _atomic(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -233,7 +220,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     info = summary(r, start, goal)
     info["map"] = os.path.abspath(args.map)
     info["map_summary"], info["map_warnings"] = grid.summary, list(grid.warnings)
-    _atomic(os.path.join(args.out, "plan.json"), lambda tmp: open(tmp, "w").write(json.dumps(info, indent=2) + "\n"))
+    atomic_write(os.path.join(args.out, "plan.json"), json.dumps(info, indent=2) + "\n")
     if r.ok:
         write_csv(os.path.join(args.out, "path.csv"), r)
         print(f"[plan] {r.planner}: {r.length:.1f} m, cost {r.cost:.1f}, {r.cusps} cusp(s), first solution in "

@@ -16,6 +16,7 @@ from typing import List, Optional
 from quadrivio_config import ConfigError
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_runtime.files import atomic_write
 
 from .. import metrics
 from ..plots import all_plots, format_metrics
@@ -53,11 +54,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         m.update(metrics.cpu_metrics(info.get("stack_cpu_s"), info.get("stack_cpu_sim_s"), info.get("stack_cpu_wall_s"),
                                      info.get("cpu_cores")))
     os.makedirs(out, exist_ok=True)
-    tmp = os.path.join(out, ".metrics.json.tmp")
-    with open(tmp, "w") as fh:
-        json.dump(m, fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, os.path.join(out, "metrics.json"))  # never half-written
+    atomic_write(os.path.join(out, "metrics.json"), json.dumps(m, indent=2) + "\n")
     title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
     made = all_plots(run, out, title)
     if not quiet and missing:

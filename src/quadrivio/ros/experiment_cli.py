@@ -33,6 +33,7 @@ import xmlrpc.client
 from typing import Dict, List, Optional, Set, Tuple
 
 from quadrivio_config import ConfigError
+from quadrivio_runtime.files import atomic_write
 from quadrivio_runtime.lockstep_wire import ARMED_PARAM
 
 from ..bus_stats import BusStatsError, behind, inbound_ports, received, sent, socket_quiet, tcp_queues
@@ -565,11 +566,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             "stack": args.stack, "lockstep": args.lockstep, "stale_fraction": args.stale_fraction,
             **runner.cpu_report(),
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
-    tmp = os.path.join(runner.out, ".run_info.json.tmp")
-    with open(tmp, "w") as fh:
-        json.dump(info, fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, os.path.join(runner.out, "run_info.json"))
+    atomic_write(os.path.join(runner.out, "run_info.json"), json.dumps(info, indent=2) + "\n")
     try:
         m = analyze(os.path.join(runner.out, "run.bag"), runner.out)
     except BagError as exc:

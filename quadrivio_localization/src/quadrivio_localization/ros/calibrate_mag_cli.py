@@ -18,7 +18,6 @@ import datetime as dt
 import math
 import os
 import sys
-import tempfile
 from typing import List, Tuple
 
 import numpy as np
@@ -28,6 +27,7 @@ from quadrivio_config import ConfigError
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_runtime.files import atomic_path, atomic_write
 
 from ..leveling import Leveller
 from .. import sanity
@@ -133,7 +133,8 @@ def _plot(path: str, m: np.ndarray, r: MagFit, h_en) -> None:
     ax[1].set_title(f"RMS {r.rms:.2f} uT, coverage {r.coverage:.0f} deg")
     ax[1].grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
     plt.close(fig)
 
 
@@ -170,18 +171,10 @@ def run(args) -> int:
               f"# horizontal field {field:.2f} uT (site file). Sigmas: {p.sigma_scale:g} x the fit's standard errors.\n")
     out_dir = os.path.dirname(os.path.abspath(args.out))
     os.makedirs(out_dir, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out_dir, suffix=".yaml.tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(header)
-            yaml.safe_dump(data, f, default_flow_style=None, sort_keys=False)
-        plot = os.path.splitext(args.out)[0] + ".png"
-        _plot(plot, m, r, h_en)
-        os.replace(tmp, args.out)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    text = header + yaml.safe_dump(data, default_flow_style=None, sort_keys=False)
+    plot = os.path.splitext(args.out)[0] + ".png"
+    _plot(plot, m, r, h_en)
+    atomic_write(args.out, text)
     print(f"[calibrate_mag] hard iron ({r.hard_iron[0]:.2f}, {r.hard_iron[1]:.2f}) +- {r.hard_iron_sigma:.2f} uT, "
           f"soft iron xx {r.soft_iron[0]:.4f} yy {r.soft_iron[1]:.4f} xy {r.soft_iron[2]:.4f}; "
           f"RMS {r.rms:.2f} uT over {r.coverage:.0f} deg of heading")

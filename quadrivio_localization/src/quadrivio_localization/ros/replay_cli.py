@@ -25,7 +25,6 @@ import argparse
 import math
 import os
 import sys
-import tempfile
 import time
 from typing import Any, Dict, Iterator, List, Tuple
 
@@ -34,6 +33,7 @@ from quadrivio_description.paths import package_dir as _package_dir
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_runtime.files import atomic_path, atomic_write
 
 from .. import sanity
 from ..smoother import Estimate, Localizer, LocalizerParams
@@ -131,14 +131,8 @@ def parse(argv: List[str]) -> argparse.Namespace:
 def write_decisions_csv(path: str, decisions) -> None:
     """The GPS decisions as CSV (fix time, used, reason, squared Mahalanobis distance), written
     aside and renamed: complete or absent."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".gps-", suffix=".csv", dir=folder)
-    with os.fdopen(fd, "w") as fh:
-        fh.write("t,used,reason,mahalanobis2\n")
-        for t, used, reason, d2 in decisions:
-            fh.write(f"{t:.6f},{int(bool(used))},{reason},{d2:.6g}\n")
-    os.replace(tmp, path)
+    rows = [f"{t:.6f},{int(bool(used))},{reason},{d2:.6g}\n" for t, used, reason, d2 in decisions]
+    atomic_write(path, "t,used,reason,mahalanobis2\n" + "".join(rows), makedirs=True)
 
 
 SANITY_SAMPLES = 2000  # readings of each kind the unit checks look at (the bag's first)
@@ -210,99 +204,92 @@ def run(args: argparse.Namespace) -> Dict[str, Any]:
     role_of = {t: r for r, t in topics.items()}
     out_dir = os.path.dirname(os.path.abspath(args.out))
     os.makedirs(out_dir, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".replay-", suffix=".bag", dir=out_dir)
-    os.close(fd)
     decisions: list = []  # (fix time, used, reason, d2) of every GPS decision, in order
     counts = {r: 0 for r in ROLES}
     counts.update(bad=0, estimates=0, calibrations=0)
     wall0 = time.perf_counter()
-    try:
-        with bag:
-            have = bag.get_type_and_topic_info().topics
-            for role in ("gps", "mag"):
-                if topics[role] not in have:
-                    raise ReplayError(f"{args.bag} has no {role} topic {topics[role]} (the smoother starts from a fix "
-                                      f"and the magnetometer); its topics: {', '.join(sorted(have)) or 'none'}")
-            missing = [f"{r} ({topics[r]})" for r in ("imu", "state") if topics[r] not in have]
-            if missing and not args.quiet:
-                print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
-            # the readings' physical sense first: a unit declared wrong is named here, not by a
-            # GTSAM traceback ("Indeterminate linear system" for a field read as 0.9 T)
-            checks = check_readings(bag, args.bag, topics, have, imap, vehicle.wheel_radius)
-            for _level, text in checks:
-                print(f"[replay] WARNING: {text}", file=sys.stderr)
-            error = sanity.first_error(checks)
-            if error:
-                raise ReplayError(error)
-            t_start, t_end = bag.get_start_time(), bag.get_end_time()
-            ticker = Ticker(loc, params.rate, t_start)
-            last_cal = -math.inf
-            next_report = 0.1
-            with rosbag.Bag(tmp, "w") as out:
+    with atomic_path(args.out) as tmp:  # the bag is whole or absent
+        try:
+            with bag:
+                have = bag.get_type_and_topic_info().topics
+                for role in ("gps", "mag"):
+                    if topics[role] not in have:
+                        raise ReplayError(f"{args.bag} has no {role} topic {topics[role]} (the smoother starts from a fix "
+                                          f"and the magnetometer); its topics: {', '.join(sorted(have)) or 'none'}")
+                missing = [f"{r} ({topics[r]})" for r in ("imu", "state") if topics[r] not in have]
+                if missing and not args.quiet:
+                    print(f"[replay] {args.bag} has no {' or '.join(missing)}: localizing without them", file=sys.stderr)
+                # the readings' physical sense first: a unit declared wrong is named here, not by a
+                # GTSAM traceback ("Indeterminate linear system" for a field read as 0.9 T)
+                checks = check_readings(bag, args.bag, topics, have, imap, vehicle.wheel_radius)
+                for _level, text in checks:
+                    print(f"[replay] WARNING: {text}", file=sys.stderr)
+                error = sanity.first_error(checks)
+                if error:
+                    raise ReplayError(error)
+                t_start, t_end = bag.get_start_time(), bag.get_end_time()
+                ticker = Ticker(loc, params.rate, t_start)
+                last_cal = -math.inf
+                next_report = 0.1
+                with rosbag.Bag(tmp, "w") as out:
 
-                def write(estimates, now: float) -> None:
-                    nonlocal last_cal
-                    for d in loc.pop_gps_decisions():  # when decided (up to the gate's look-ahead after the fix)
-                        decisions.append(d)
-                        out.write("/localization/gps_decisions", messages.gps_decision(*d), rospy.Time.from_sec(now))
-                    for tick, est in estimates:
-                        at = rospy.Time.from_sec(tick)
-                        out.write("/localization/odom", messages.odometry(est, node.map_frame, node.base_frame), at)
-                        counts["estimates"] += 1
-                        if tick - last_cal >= node.calibration_period:
-                            last_cal = tick
-                            out.write("/localization/calibration", messages.calibration(est, loc.calibration_sigma()), at)
-                            counts["calibrations"] += 1
+                    def write(estimates, now: float) -> None:
+                        nonlocal last_cal
+                        for d in loc.pop_gps_decisions():  # when decided (up to the gate's look-ahead after the fix)
+                            decisions.append(d)
+                            out.write("/localization/gps_decisions", messages.gps_decision(*d), rospy.Time.from_sec(now))
+                        for tick, est in estimates:
+                            at = rospy.Time.from_sec(tick)
+                            out.write("/localization/odom", messages.odometry(est, node.map_frame, node.base_frame), at)
+                            counts["estimates"] += 1
+                            if tick - last_cal >= node.calibration_period:
+                                last_cal = tick
+                                out.write("/localization/calibration", messages.calibration(est, loc.calibration_sigma()), at)
+                                counts["calibrations"] += 1
 
-                for topic, raw, t in read_messages(bag, args.bag, raw=True, error=ReplayError):
-                    now = t.to_sec()
-                    write(ticker.until(now), now)
-                    role = role_of.get(topic)
-                    if role is not None:
-                        try:
-                            msg = raw[4]()
-                            msg.deserialize(raw[1])
-                            if imap is not None:
-                                msg = imap.convert(role, msg, t)
-                            feed[role](loc, msg)
-                            counts[role] += 1
-                        except ConfigError as exc:  # the mapping names a field the messages lack
-                            raise ReplayError(str(exc)) from exc
-                        except (AttributeError, TypeError, ValueError, genpy.DeserializationError) as exc:
-                            counts["bad"] += 1
-                            if counts["bad"] <= 5:
-                                print(f"[replay] {topic} at {now:.3f} s: unusable message ({exc}); skipped",
-                                      file=sys.stderr)
-                    if args.only_outputs or topic.startswith("/localization/"):
-                        continue
-                    if topic in ("/tf", "/tf_static") and raw[0] == "tf2_msgs/TFMessage":
-                        msg = TFMessage()
-                        msg.deserialize(raw[1])
-                        kept = [tr for tr in msg.transforms
-                                if not (tr.header.frame_id.lstrip("/") == node.map_frame
-                                        and tr.child_frame_id.lstrip("/") == node.odom_frame)]
-                        if len(kept) != len(msg.transforms):
-                            if kept:
-                                out.write(topic, TFMessage(transforms=kept), t)
+                    for topic, raw, t in read_messages(bag, args.bag, raw=True, error=ReplayError):
+                        now = t.to_sec()
+                        write(ticker.until(now), now)
+                        role = role_of.get(topic)
+                        if role is not None:
+                            try:
+                                msg = raw[4]()
+                                msg.deserialize(raw[1])
+                                if imap is not None:
+                                    msg = imap.convert(role, msg, t)
+                                feed[role](loc, msg)
+                                counts[role] += 1
+                            except ConfigError as exc:  # the mapping names a field the messages lack
+                                raise ReplayError(str(exc)) from exc
+                            except (AttributeError, TypeError, ValueError, genpy.DeserializationError) as exc:
+                                counts["bad"] += 1
+                                if counts["bad"] <= 5:
+                                    print(f"[replay] {topic} at {now:.3f} s: unusable message ({exc}); skipped",
+                                          file=sys.stderr)
+                        if args.only_outputs or topic.startswith("/localization/"):
                             continue
-                    out.write(topic, raw, t, raw=True)
-                    frac = (now - t_start) / max(t_end - t_start, 1e-9)
-                    if not args.quiet and frac >= next_report:
-                        print(f"[replay] {100 * frac:3.0f} % of {t_end - t_start:.1f} s, {counts['estimates']} "
-                              f"estimates, {time.perf_counter() - wall0:.1f} s", file=sys.stderr)
-                        next_report += 0.1
-                write(ticker.final(), t_end)
-    except rosbag.ROSBagException as exc:
-        os.unlink(tmp)
-        raise ReplayError(f"{args.bag}: corrupt bag ({exc})") from exc
-    except BaseException:
-        os.unlink(tmp)
-        raise
-    if counts["estimates"] == 0:
-        os.unlink(tmp)
-        raise ReplayError(f"{args.bag}: no estimate at all from {counts['gps']} GPS messages and {counts['mag']} "
-                          "magnetometer readings (the smoother needs a fix and the magnetometer to start)")
-    os.replace(tmp, args.out)
+                        if topic in ("/tf", "/tf_static") and raw[0] == "tf2_msgs/TFMessage":
+                            msg = TFMessage()
+                            msg.deserialize(raw[1])
+                            kept = [tr for tr in msg.transforms
+                                    if not (tr.header.frame_id.lstrip("/") == node.map_frame
+                                            and tr.child_frame_id.lstrip("/") == node.odom_frame)]
+                            if len(kept) != len(msg.transforms):
+                                if kept:
+                                    out.write(topic, TFMessage(transforms=kept), t)
+                                continue
+                        out.write(topic, raw, t, raw=True)
+                        frac = (now - t_start) / max(t_end - t_start, 1e-9)
+                        if not args.quiet and frac >= next_report:
+                            print(f"[replay] {100 * frac:3.0f} % of {t_end - t_start:.1f} s, {counts['estimates']} "
+                                  f"estimates, {time.perf_counter() - wall0:.1f} s", file=sys.stderr)
+                            next_report += 0.1
+                    write(ticker.final(), t_end)
+        except rosbag.ROSBagException as exc:
+            raise ReplayError(f"{args.bag}: corrupt bag ({exc})") from exc
+        if counts["estimates"] == 0:
+            raise ReplayError(f"{args.bag}: no estimate at all from {counts['gps']} GPS messages and {counts['mag']} "
+                              "magnetometer readings (the smoother needs a fix and the magnetometer to start)")
     if args.gps_csv:
         write_decisions_csv(args.gps_csv, decisions)
     c = loc.counters
