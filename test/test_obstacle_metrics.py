@@ -86,6 +86,25 @@ def test_protective_stops_judged_by_the_ground_truth():
     assert obstacle_metrics(crossing, V, anticipation=0.3)["false_stops"] == 1
 
 
+def test_a_recording_without_ground_truth_cannot_judge_its_stops():
+    """The vehicle's own bag: the stops are counted and drawn at the estimated pose, but
+    whether they were false is unknown (null), not 0."""
+    from quadrivio.obstacle_metrics import stop_list
+
+    est = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
+    rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0], [5.0, 2, 0.0, 0.8, 1.2, 4.97, 1, 1.0, 0, 1.0, 0, 0],
+            [7.0, 0, 1.5, 9.0, 0.3, 0.0, 1, 1.0, 0, 0.0, 0, 0]]
+    run = RunData(Series.empty(), est, Series.empty(), Series.empty(), None, Series.empty(), guard=guard_series(rows))
+    m = obstacle_metrics(run, V)
+    assert m["protective_stops"] == 1
+    assert m["false_stops"] is None and m["anticipated_stops"] is None
+    assert [(t, round(x, 3), y, a) for t, x, y, a in stop_list(run)] == [(5.0, 5.0, 0.0, 2)]
+    # no stop at all: nothing to judge, 0 whatever the truth
+    calm = RunData(Series.empty(), est, Series.empty(), Series.empty(), None, Series.empty(),
+                   guard=guard_series([rows[0], rows[2]]))
+    assert obstacle_metrics(calm, V)["false_stops"] == 0
+
+
 def test_contacts_count_with_body_and_speed():
     gt = straight_run()
     run = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(),

@@ -127,6 +127,25 @@ def test_metrics_without_ground_truth_are_null():
     assert m["completed"] is True
 
 
+def test_the_followers_own_cross_track_needs_no_ground_truth():
+    """xte_est_*: the cross-track error the follower reported while FOLLOWING (of the estimated
+    pose, signed left positive): all a recording of the real vehicle says about tracking."""
+    run = circle_run(with_truth=False)
+    assert compute(run)["xte_est_rmse_m"] is None  # statuses without a cross-track: nothing to say
+    t = np.arange(0.0, 10.0, 0.02)
+    status = np.where(t < 1.0, 0, np.where(t < 9.0, 1, 2))  # WAITING, FOLLOWING, DONE
+    xt = np.where(np.arange(len(t)) % 2 == 0, 0.3, -0.4)  # alternating sides: |.| counts
+    xt[t < 1.0] = 5.0  # not yet following (the start 5 m off the path): not counted
+    xt[t >= 9.0] = 7.0  # done, parked off the path: not counted
+    xt[(t >= 4.0) & (t < 4.1)] = math.nan  # a status without a number: skipped, not a NaN metric
+    run.status = Series(t, {"status": status, "progress": np.zeros_like(t), "cross_track": xt})
+    m = compute(run)
+    assert m["xte_rmse_m"] is None  # the true one still needs the truth
+    assert m["xte_est_max_m"] == pytest.approx(0.4)
+    assert m["xte_est_rmse_m"] == pytest.approx(math.sqrt((0.3 ** 2 + 0.4 ** 2) / 2), rel=0.01)
+    assert compute(circle_run())["xte_est_max_m"] is None  # a follower without cross-track in its status
+
+
 def test_a_scenario_must_end_on_duration_covering_the_program(tmp_path):
     from quadrivio_navigation.excitation import ExcitationParams, build
 

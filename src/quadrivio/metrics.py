@@ -159,6 +159,20 @@ def following_window(status: Series, default: tuple) -> tuple:
     return t0, t1
 
 
+def follower_cross_track(status: Series) -> Optional[np.ndarray]:
+    """(t, |cross-track error|) that the follower itself reported while FOLLOWING: the distance
+    of the *estimated* pose to its path (``/follower/status``). Unlike ``cross_track`` it needs
+    no ground truth, so it is what a recording of the real vehicle says about tracking; beside
+    the true one it separates the follower's share from the localization's. None without."""
+    if len(status) == 0 or "cross_track" not in status.cols:
+        return None
+    xt = np.asarray(status["cross_track"], float)
+    on = (status["status"] == 1) & np.isfinite(xt)
+    if not on.any():
+        return None
+    return np.column_stack([status.t[on], np.abs(xt[on])])
+
+
 def collision_events(gt: Series, grid, footprint, lethal: int = 65) -> Optional[int]:
     """Times the true footprint went from touching no occupied cell to touching one
     (ground-truth samples against the map's cells at or above ``lethal``)."""
@@ -336,6 +350,11 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
             m["xte_max_m"] = float(np.max(xt[:, 1]))
         lat = np.abs(gt["vx"] * gt["wz"])  # a_y = v omega for the rear axle centre
         m["max_lateral_accel_mps2"] = float(np.max(lat)) if len(lat) else None
+    m["xte_est_rmse_m"] = m["xte_est_max_m"] = None
+    xe = follower_cross_track(st)
+    if xe is not None:
+        m["xte_est_rmse_m"] = float(np.sqrt(np.mean(xe[:, 1] ** 2)))
+        m["xte_est_max_m"] = float(np.max(xe[:, 1]))
     m.update(planned_metrics(run))
     if vehicle is not None:
         from .obstacle_metrics import obstacle_metrics

@@ -16,7 +16,8 @@
   ``tolerance``, nor entered it within the next ``anticipation`` seconds (the guard's
   ``track_horizon``: it stops for where a moving obstacle will be): nothing was there to
   stop for; ``anticipated_stops``: those for a body that was not in that field yet but
-  entered it within ``anticipation``;
+  entered it within ``anticipation``; both null when a recording without ground truth has
+  stops (they cannot be judged there);
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
@@ -214,8 +215,10 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
             after = np.flatnonzero((sp.t >= start) & (sp["speed"] == 0.0) & (sp["brake"] >= 0.99))
             if len(after):
                 latencies.append(1e3 * (float(sp.t[after[0]]) - start))
-    out["false_stops"] = false
-    out["anticipated_stops"] = anticipated
+    # judged against the ground truth: a recording without it cannot say (null, not 0)
+    judged = len(run.ground_truth) > 0 or not stops
+    out["false_stops"] = false if judged else None
+    out["anticipated_stops"] = anticipated if judged else None
     out["stop_latencies_ms"] = latencies
     out["stops_entered_by_motion"] = by_motion
     # from each stop's decision (protective or fail-safe) to the vehicle's standstill
@@ -236,8 +239,10 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
 
 
 def stop_list(run) -> List[tuple]:
-    """(t, x, y, action) of each stop of the guard (STOP or FAULT), at the true position, for plots."""
-    g, gt = run.guard, run.ground_truth
+    """(t, x, y, action) of each stop of the guard (STOP or FAULT), for plots: at the true
+    position, or at the estimated one in a recording without ground truth."""
+    g = run.guard
+    gt = run.ground_truth if len(run.ground_truth) else run.estimate
     if len(g) == 0 or len(gt) == 0:
         return []
     action = g["action"]

@@ -10,7 +10,7 @@ import numpy as np
 
 from quadrivio_runtime.files import atomic_path
 
-from .metrics import RunData, cross_track, following_window, gps_errors, position_errors
+from .metrics import RunData, cross_track, follower_cross_track, following_window, gps_errors, position_errors
 
 
 def _plt():
@@ -230,7 +230,12 @@ def errors(run: RunData, path: str, title: str) -> bool:
     span = following_window(run.status, (float(run.ground_truth.t[0]), float(run.ground_truth.t[-1])))
     xt = cross_track(run.ground_truth, run.path, *span)
     if xt is not None:
-        axes[2].plot(xt[:, 0] - t0, xt[:, 1], color="tab:green", lw=1)
+        axes[2].plot(xt[:, 0] - t0, xt[:, 1], color="tab:green", lw=1, label="true pose")
+    xe = follower_cross_track(run.status)
+    if xe is not None:
+        axes[2].plot(xe[:, 0] - t0, xe[:, 1], color="k", ls="--", lw=0.7, label="as the follower saw it (estimate)")
+    if xt is not None or xe is not None:
+        axes[2].legend(loc="upper right", fontsize=8)
     axes[2].set_ylabel("cross-track error [m]")
     axes[2].set_xlabel("time [s]")
     for ax in axes:
@@ -246,7 +251,10 @@ def control(run: RunData, path: str, title: str) -> bool:
     if not len(run.vehicle):
         return False
     plt = _plt()
-    fig, axes = plt.subplots(2, 1, figsize=(10, 5.5), sharex=True)
+    # the follower's own cross-track error: in a recording without ground truth, the one
+    # view of how well it tracked
+    xe = follower_cross_track(run.status)
+    fig, axes = plt.subplots(2 if xe is None else 3, 1, figsize=(10, 5.5 if xe is None else 7.5), sharex=True)
     t0 = run.vehicle.t[0]
     for ax, key, unit in ((axes[0], "speed", "m/s"), (axes[1], "handlebar", "rad")):
         if len(run.setpoint):
@@ -255,7 +263,11 @@ def control(run: RunData, path: str, title: str) -> bool:
         ax.set_ylabel(f"{key} [{unit}]")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
-    axes[1].set_xlabel("time [s]")
+    if xe is not None:
+        axes[2].plot(xe[:, 0] - t0, xe[:, 1], color="k", lw=0.8)
+        axes[2].set_ylabel("cross-track, estimated [m]")
+        axes[2].grid(True, alpha=0.3)
+    axes[-1].set_xlabel("time [s]")
     axes[0].set_title(title)
     fig.tight_layout()
     _save(fig, path)
