@@ -60,7 +60,9 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
            ("gps_not_used", "GPS fixes not used", ""), ("update_p99_ms", "update p99", "ms"),
            ("cpu_frac", "smoother CPU", ""),
            # closed-loop runs with obstacles and actors (OBSTACLES.md)
-           ("completed", "completed", ""), ("collisions", "collisions", ""),
+           ("completed", "completed", ""),
+           ("xte_rmse_m", "cross-track RMSE", "m"), ("xte_est_rmse_m", "cross-track RMSE, estimated", "m"),
+           ("collisions", "collisions", ""),
            ("min_clearance_m", "min clearance", "m"), ("protective_stops", "protective stops", ""),
            ("false_stops", "false stops", ""), ("anticipated_stops", "anticipated stops", ""),
            ("time_blocked_s", "time blocked", "s"))
@@ -195,6 +197,7 @@ def _closed_loop_figures(s, seed: int, m: Dict, completed: bool) -> Dict:
             "rmse_m": m.get("loc_rmse_after_10s_m", m.get("loc_rmse_m")), "gps_rmse_m": m.get("gps_rmse_m"),
             "max_error_m": m.get("loc_max_m"), "heading_rmse_deg": m.get("loc_heading_rmse_deg"),
             "wall_s": m.get("wall_duration_s"), "sim_s": m.get("sim_duration_s"), "xte_rmse_m": m.get("xte_rmse_m"),
+            "xte_est_rmse_m": m.get("xte_est_rmse_m"),
             "completed": None if m.get("completed") is None else float(bool(m.get("completed"))),
             **{k: m.get(k) for k in ("collisions", "min_clearance_m", "protective_stops", "false_stops",
                                      "anticipated_stops", "time_blocked_s", "goal_position_error_m")}}
