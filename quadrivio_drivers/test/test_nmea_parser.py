@@ -89,6 +89,50 @@ def test_a_missing_gst_does_not_hold_the_fix_beyond_its_epoch():
                                                   COVARIANCE_DIAGONAL_KNOWN]
 
 
+def _delivered_at(lines):
+    """Each fix with the index of the line that delivered it."""
+    parser, out = NmeaFixParser(), []
+    for k, line in enumerate(lines):
+        out += [(k, f) for f in parser.feed_line(line, 100.0 + k) if isinstance(f, Fix)]
+    return out
+
+
+def test_a_gst_sent_before_its_gga_completes_it_on_arrival():
+    """Receivers differ in their sentences' order: GST, RMC, then GGA here."""
+    lines = []
+    for k in range(3):
+        gga, gst, rmc = ENC.encode(reading(1.0 + k, (float(k), 0.0, 0.0)))
+        lines += [gst, rmc, gga]
+    out = _delivered_at(lines)
+    assert [k for k, _ in out] == [2, 5, 8]  # at each GGA, not one epoch later
+    assert all(f.covariance_type == COVARIANCE_DIAGONAL_KNOWN for _, f in out)
+    assert (out[0][1].covariance[0], out[0][1].covariance[4]) == pytest.approx((0.0009, 0.0016), rel=0.05)
+
+
+def test_a_receiver_of_gga_alone_delivers_each_fix_on_arrival():
+    """GGA only, no GST, no RMC: the first epoch cannot know that nothing completes it (its
+    fix leaves with the next GGA); every later fix leaves as it arrives, not a period late."""
+    lines = [ENC.encode(reading(1.0 + k, (float(k), 0.0, 0.0)))[0] for k in range(4)]
+    out = _delivered_at(lines)
+    assert [k for k, _ in out] == [1, 1, 2, 3]
+    assert [round(FRAME.lla_to_enu(f.latitude, f.longitude, f.altitude)[0], 3) for _, f in out] == [0.0, 1.0, 2.0, 3.0]
+    assert all(f.covariance_type == COVARIANCE_APPROXIMATED for _, f in out)
+    assert [f.received for _, f in out] == [100.0, 101.0, 102.0, 103.0]  # stamped at their own GGA
+
+
+def test_a_gst_after_the_rmc_still_completes_every_later_epoch():
+    """GGA, RMC, GST: the first epoch leaves at its RMC (no GST seen yet), the later ones at
+    their GST, with its covariance."""
+    lines = []
+    for k in range(3):
+        gga, gst, rmc = ENC.encode(reading(1.0 + k, (float(k), 0.0, 0.0)))
+        lines += [gga, rmc, gst]
+    out = _delivered_at(lines)
+    assert [k for k, _ in out] == [1, 5, 8]
+    assert [f.covariance_type for _, f in out] == [COVARIANCE_APPROXIMATED, COVARIANCE_DIAGONAL_KNOWN,
+                                                   COVARIANCE_DIAGONAL_KNOWN]
+
+
 def test_bad_sentences_are_counted_and_skipped():
     good = ENC.encode(reading(1.0, (5.0, 5.0, 0.0)))
     corrupted = good[0][:20] + ("1" if good[0][20] != "1" else "2") + good[0][21:]

@@ -2,11 +2,19 @@
 
 Parsing is pynmea2's (checksums verified). An epoch is one GGA (position, quality,
 HDOP, altitude) with the GST (error standard deviations) and RMC (velocity) of the
-same UTC time. A GGA is held until its epoch's GST (diagonal covariance from the
-GST's standard deviations) or until a sentence of another epoch -- or, for a receiver
-that has sent no GST so far, the epoch's RMC -- shows that none is coming; the fix then
-gets a covariance from HDOP x a per-quality error (``HDOP_ERROR``), flagged as
-approximated. Altitude is the ellipsoidal height,
+same UTC time. Receivers differ in which of them they send and in what order, so:
+
+* a GGA is held until its epoch's GST (diagonal covariance from the GST's standard
+  deviations) or until a sentence of another epoch -- or, for a receiver that has sent no
+  GST so far, the epoch's RMC -- shows that none is coming; the fix then gets a covariance
+  from HDOP x a per-quality error (``HDOP_ERROR``), flagged as approximated;
+* a GST that comes before its epoch's GGA (the order some receivers use) is kept and
+  completes that GGA on its arrival;
+* once an epoch has ended without a GST from a receiver that has never sent one (GGA
+  alone, or GGA and RMC), every later GGA is a fix on arrival: nothing will complete it,
+  and holding it for the next epoch would deliver every fix one period late.
+
+Altitude is the ellipsoidal height,
 GGA's mean-sea-level altitude plus its geoid separation (as NavSatFix wants).
 
 Quality -> sensor_msgs/NavSatStatus: 0 -> NO_FIX (-1), 1 -> FIX (0),
@@ -63,6 +71,8 @@ class NmeaFixParser:
     def __init__(self) -> None:
         self.pending: Optional[Fix] = None
         self.gst_seen = False
+        self.early_gst: Optional[Tuple[str, pynmea2.GST]] = None  # (epoch, GST) that came before its GGA
+        self.ended_without_gst = 0  # epochs finished without a GST while none was ever seen
         self.stats = ParseStats()
         self.problems: List[str] = []
 
@@ -98,12 +108,21 @@ class NmeaFixParser:
                 out.append(self._finish(self.pending, None))
                 self.pending = None
             if isinstance(msg, pynmea2.GGA):
-                self.pending = self._from_gga(msg, received)
+                fix = self._from_gga(msg, received)
+                early, self.early_gst = self.early_gst, None
+                if early is not None and early[0] == fix.utc:
+                    out.append(self._finish(fix, early[1]))  # its GST came first
+                elif not self.gst_seen and self.ended_without_gst:
+                    out.append(self._finish(fix, None))  # a receiver without GST: nothing will complete it
+                else:
+                    self.pending = fix
             elif isinstance(msg, pynmea2.GST):
                 self.gst_seen = True
                 if self.pending is not None:
                     out.append(self._finish(self.pending, msg))
                     self.pending = None
+                elif utc:
+                    self.early_gst = (utc, msg)  # before its GGA
             elif isinstance(msg, pynmea2.RMC):
                 if self.pending is not None and not self.gst_seen:  # this receiver sends no GST (so far)
                     out.append(self._finish(self.pending, None))
@@ -136,6 +155,8 @@ class NmeaFixParser:
                    hdop, received)
 
     def _finish(self, fix: Fix, gst: Optional[pynmea2.GST]) -> Fix:
+        if gst is None and not self.gst_seen:
+            self.ended_without_gst += 1
         if gst is not None and fix.status != NO_FIX and gst.std_dev_latitude not in (None, ""):
             sn, se, su = float(gst.std_dev_latitude), float(gst.std_dev_longitude), float(gst.std_dev_altitude)
             fix.covariance = (se * se, 0.0, 0.0, 0.0, sn * sn, 0.0, 0.0, 0.0, su * su)
