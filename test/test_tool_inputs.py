@@ -211,3 +211,37 @@ def test_every_gps_decision_is_visible_in_the_replayed_bag_the_csv_and_analyze(t
     assert m["gps_fixes_used"] == len(rows) - len(rejected)
     assert sum(v for k, v in m.items() if k.startswith("gps_fixes_rejected_")) == len(rejected)
     assert (analysis / "trajectory.png").exists()
+
+
+def test_a_long_recording_shows_progress(tmp_path, capsys, monkeypatch):
+    """A field recording of hours takes analyze minutes: it says how far it is (by recorded
+    time, at most every PROGRESS_S of wall time), then each phase; a short bag says nothing."""
+    import re
+
+    from quadrivio.ros.bag import read_run
+    from quadrivio_description.site import load_site
+    from quadrivio_description.vehicle import load_vehicle
+
+    bag = tmp_path / "field.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(601):  # 600 s of recording, an estimate a second
+            t = rospy.Time(100.0 + k)
+            est = Odometry()
+            est.header.stamp, est.header.frame_id = t, "map"
+            est.pose.pose.position.x = 0.5 * k
+            est.pose.pose.orientation.w = 1.0
+            b.write("/localization/odom", est, t)
+    seen = []
+    read_run(str(bag), load_site(), load_vehicle(), progress=lambda done, span: seen.append((done, span)))
+    assert [round(d) for d, _ in seen] == [60, 120, 180, 240, 300, 360, 420, 480, 540, 600]
+    assert all(span == pytest.approx(600.0) for _, span in seen)
+
+    monkeypatch.setattr(analyze_cli, "PROGRESS_S", 0.0)
+    assert analyze_cli.main([str(bag), "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    percents = [int(p) for p in re.findall(r"reading field\.bag: +(\d+) % of 600 s recorded", err)]
+    assert percents == [10, 20, 30, 40, 50, 60, 70, 80, 90, 100]
+    assert "computing the metrics" in err and "drawing the plots" in err
+    monkeypatch.setattr(analyze_cli, "LONG_BAG_S", 601.0)  # shorter than that: silent
+    assert analyze_cli.main([str(bag), "--out", str(tmp_path / "b")]) == 0
+    assert "[analyze] reading" not in capsys.readouterr().err

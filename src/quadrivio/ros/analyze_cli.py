@@ -11,6 +11,7 @@ import argparse
 import json
 import os
 import sys
+import time
 from typing import List, Optional
 
 from quadrivio_config import ConfigError
@@ -21,6 +22,10 @@ from quadrivio_runtime.files import atomic_write
 from .. import metrics
 from ..plots import all_plots, format_metrics
 from .bag import NEEDED_FOR, BagError, missing_topics, open_bag, read_run
+
+
+LONG_BAG_S = 300.0  # [s] of recording from which analyze reports its progress (shorter ones take seconds)
+PROGRESS_S = 5.0  # [s] of wall time between two progress lines at the most
 
 
 def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False,
@@ -37,7 +42,19 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
             # nothing to compute: no metrics.json of nulls that reads like a result
             raise BagError(f"{bag} holds none of the topics the analysis reads: {'; '.join(missing)}. A recording "
                            f"made with other drivers' topics needs an import mapping (--map)")
-        run = read_run(bag, site, vehicle, imap, opened)
+        t0 = time.perf_counter()
+        said = [t0]
+
+        def progress(done: float, span: float) -> None:  # a line at most every PROGRESS_S of wall time
+            now = time.perf_counter()
+            if not quiet and span >= LONG_BAG_S and now - said[0] >= PROGRESS_S:
+                said[0] = now
+                print(f"[analyze] reading {os.path.basename(bag)}: {100 * done / span:3.0f} % of {span:.0f} s "
+                      f"recorded, {now - t0:.0f} s", file=sys.stderr, flush=True)
+
+        run = read_run(bag, site, vehicle, imap, opened, progress=progress)
+        long_bag = not quiet and opened.get_message_count() and \
+            opened.get_end_time() - opened.get_start_time() >= LONG_BAG_S
     info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
     info = {}
     if os.path.isfile(info_path):
@@ -49,6 +66,8 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
             raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
                            f"move it away to analyze the bag alone") from exc
+    if long_bag:
+        print(f"[analyze] read in {time.perf_counter() - t0:.0f} s; computing the metrics", file=sys.stderr, flush=True)
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
     if info.get("stack_cpu_s") is not None:  # experiment measured its processes' CPU while sim time ran
         m.update(metrics.cpu_metrics(info.get("stack_cpu_s"), info.get("stack_cpu_sim_s"), info.get("stack_cpu_wall_s"),
@@ -56,6 +75,9 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     os.makedirs(out, exist_ok=True)
     atomic_write(os.path.join(out, "metrics.json"), json.dumps(m, indent=2) + "\n")
     title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
+    if long_bag:
+        print(f"[analyze] metrics written ({time.perf_counter() - t0:.0f} s); drawing the plots", file=sys.stderr,
+              flush=True)
     made = all_plots(run, out, title)
     if not quiet and missing:
         print(f"[analyze] {bag} lacks {len(missing)} topic(s) the analysis uses; null or not plotted: "

@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 import math
 from collections import Counter, defaultdict
-from typing import Dict, Iterable, List, Optional
+from typing import Callable, Dict, Iterable, List, Optional
 
 import numpy as np
 
@@ -95,9 +95,11 @@ def _opened(path: str, bag=None):
     return contextlib.nullcontext(bag) if bag is not None else open_bag(path, BagError)
 
 
-def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None) -> RunData:
+def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None,
+             progress: Optional[Callable[[float, float], None]] = None) -> RunData:
     """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state;
-    ``bag``: the bag at ``path`` already open (left open)."""
+    ``bag``: the bag at ``path`` already open (left open); ``progress(done, span)``: called
+    with the recorded seconds read so far and the bag's span, after each tenth of it."""
     import rosbag
 
     topics = topics_for(imap)
@@ -115,8 +117,16 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
     decisions: List[tuple] = []  # (fix stamp, used, reason, d2) of localization/gps_decisions
     by_topic = {v: k for k, v in topics.items()}
     with _opened(path, bag) as bag:
+        t_begin, span, step, next_report = 0.0, 0.0, math.inf, math.inf
+        if progress is not None:
+            t_begin = bag.get_start_time() if bag.get_message_count() else 0.0
+            span = bag.get_end_time() - t_begin if bag.get_message_count() else 0.0
+            step = next_report = span / 10.0 if span > 0.0 else math.inf
         try:
             for topic, m, t_recv in read_messages(bag, path, list(topics.values()), error=BagError):
+                if t_recv.to_sec() - t_begin >= next_report:
+                    progress(t_recv.to_sec() - t_begin, span)
+                    next_report += step
                 kind = by_topic[topic]
                 if imap is not None and kind in role_of and role_of[kind] in imap.sections:
                     m = imap.convert(role_of[kind], m, t_recv)  # a ConfigError names a missing field
