@@ -21,11 +21,47 @@ from quadrivio_runtime.files import atomic_write
 
 from .. import metrics
 from ..plots import all_plots, format_metrics
+from ..stop_views import write_views
 from .bag import NEEDED_FOR, BagError, missing_topics, open_bag, read_run
+from .stop_scenes import read_stop_scenes
 
 
 LONG_BAG_S = 300.0  # [s] of recording from which analyze reports its progress (shorter ones take seconds)
 PROGRESS_S = 5.0  # [s] of wall time between two progress lines at the most
+
+
+def _run_info(bag: str) -> dict:
+    """``run_info.json`` beside the bag ({} without one); a BagError naming it when unreadable."""
+    info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
+    if not os.path.isfile(info_path):
+        return {}
+    try:
+        with open(info_path) as fh:
+            info = json.load(fh)
+        if not isinstance(info, dict):
+            raise ValueError(f"a JSON {type(info).__name__}, not an object")
+    except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
+        raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
+                       f"move it away to analyze the bag alone") from exc
+    return info
+
+
+def _guard_params(info: dict):
+    """The guard's parameters the run used: its scenario's (when run_info.json names a
+    readable one), else the package's guard.yaml."""
+    from quadrivio_navigation.guard import GuardParams
+
+    from ..closed_loop import _config
+    from ..scenario import _defaults, load_scenario
+    from quadrivio_description.paths import ros_package_path
+
+    path = info.get("scenario_file")
+    if isinstance(path, str) and os.path.isfile(path):
+        try:
+            return _config(GuardParams, "quadrivio_navigation", "guard.yaml", load_scenario(path), "guard")
+        except (ConfigError, OSError, ValueError):
+            pass  # the scenario has changed since: the defaults
+    return _defaults(GuardParams, os.path.join(ros_package_path("quadrivio_navigation"), "config", "guard.yaml"))
 
 
 def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", quiet: bool = False,
@@ -55,17 +91,9 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         run = read_run(bag, site, vehicle, imap, opened, progress=progress)
         long_bag = not quiet and opened.get_message_count() and \
             opened.get_end_time() - opened.get_start_time() >= LONG_BAG_S
-    info_path = os.path.join(os.path.dirname(os.path.abspath(bag)), "run_info.json")
-    info = {}
-    if os.path.isfile(info_path):
-        try:
-            with open(info_path) as fh:
-                info = json.load(fh)
-            if not isinstance(info, dict):
-                raise ValueError(f"a JSON {type(info).__name__}, not an object")
-        except (OSError, ValueError) as exc:  # json.JSONDecodeError is a ValueError
-            raise BagError(f"{info_path} (the run's description beside the bag) is unreadable: {exc}; "
-                           f"move it away to analyze the bag alone") from exc
+        info = _run_info(bag)
+        guard = _guard_params(info)
+        scenes, stops = read_stop_scenes(opened, bag, run, vehicle, [(sc.topic, sc.frame) for sc in guard.scanners])
     if long_bag:
         print(f"[analyze] read in {time.perf_counter() - t0:.0f} s; computing the metrics", file=sys.stderr, flush=True)
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
@@ -79,6 +107,10 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         print(f"[analyze] metrics written ({time.perf_counter() - t0:.0f} s); drawing the plots", file=sys.stderr,
               flush=True)
     made = all_plots(run, out, title)
+    views = write_views(scenes, vehicle, guard.padding, out, title)
+    if views and stops > len(views):
+        views.append(f"(the first {len(views)} of {stops} stops)")
+    made += views
     if not quiet and missing:
         print(f"[analyze] {bag} lacks {len(missing)} topic(s) the analysis uses; null or not plotted: "
               + "; ".join(missing))

@@ -66,6 +66,7 @@ NEEDED_FOR = {
     "vehicle": "the control plot's measured speed and handlebar",
     "status": "completed and the follower's progress",
     "calibration": "the calibration plot",
+    "guard": "the guard's stops, guard.png and a picture of each stop",
 }
 
 

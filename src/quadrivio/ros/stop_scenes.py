@@ -1,0 +1,186 @@
+"""The guard's stops in a bag, with the scans it judged: :class:`quadrivio.stop_views.StopScene`.
+
+A stop is a ``/guard/status`` whose action turns to STOP or FAULT. Its scans are those of
+every scanner the guard reads, recorded from half a second before the stop to just after it:
+for the scanner the status names, the scan of its ``scan_stamp``; for the others, their
+newest up to the stop. A laser's mount comes from the bag's ``/tf_static`` (then ``/tf``),
+chained to ``base_link`` (a laser on a bracket on a mast, upside down, ...), and only when
+the bag has none from the vehicle description's ``sensors``, which the picture then says.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from quadrivio_recordings.ros.bag import read_messages
+
+from ..obstacle_metrics import _at, actors_at, map_points
+from ..stop_views import FAULT, MAX_VIEWS, STOP, StopScene, to_base_link
+from .bag import BagError
+
+GUARD_TOPIC = "/guard/status"
+WINDOW = 0.5  # [s] of scans read before a stop
+TF_SCAN = 10.0  # [s] of /tf searched for the lasers' mounts when /tf_static lacks them
+MAP_RADIUS = 20.0  # [m] map cells drawn about the pose
+
+
+def _rotation(q) -> np.ndarray:
+    x, y, z, w = q
+    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw),
+                              math.sin(yaw))
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def chain_to(frame: str, edges: Dict[str, Tuple[str, np.ndarray, np.ndarray]], base: str
+             ) -> Optional[Tuple[np.ndarray, np.ndarray]]:
+    """(R, p) of ``frame`` in ``base`` from child -> (parent, R, p) edges; None when the
+    chain does not reach ``base`` (or loops)."""
+    R, p = np.eye(3), np.zeros(3)
+    seen = set()
+    while frame != base:
+        if frame in seen or frame not in edges:
+            return None
+        seen.add(frame)
+        parent, Rp, pp = edges[frame]
+        R, p = Rp @ R, Rp @ p + pp
+        frame = parent
+    return R, p
+
+
+def laser_mounts(bag, path: str, frames: Sequence[str], vehicle, base: str = "base_link"
+                 ) -> Tuple[Dict[str, Tuple[np.ndarray, np.ndarray]], str]:
+    """Each frame's (R, p) in ``base`` and where they came from."""
+    import rospy
+
+    edges: Dict[str, Tuple[str, np.ndarray, np.ndarray]] = {}
+    have = bag.get_type_and_topic_info().topics
+    t0 = bag.get_start_time() if bag.get_message_count() else 0.0
+    for topic in ("/tf_static", "/tf"):
+        if topic not in have or all(chain_to(f, edges, base) is not None for f in frames):
+            continue
+        # /tf: its first TF_SCAN seconds (a mount published as a dynamic transform repeats)
+        end = None if topic == "/tf_static" else rospy.Time.from_sec(t0 + TF_SCAN)
+        for _, m, _ in read_messages_between(bag, path, topic, end):
+            for tr in m.transforms:
+                child = tr.child_frame_id.lstrip("/")
+                if child not in edges:
+                    t, q = tr.transform.translation, tr.transform.rotation
+                    edges[child] = (tr.header.frame_id.lstrip("/"), _rotation((q.x, q.y, q.z, q.w)),
+                                    np.array([t.x, t.y, t.z]))
+            if all(chain_to(f, edges, base) is not None for f in frames):
+                break
+    mounts, described = {}, []
+    for f in frames:
+        found = chain_to(f, edges, base)
+        if found is None and f in vehicle.sensors:
+            s = vehicle.sensors[f]
+            found = (_rpy(*s.rpy), np.array(s.xyz, float))
+            described.append(f)
+        if found is not None:
+            mounts[f] = found
+    source = "the bag's TF" if not described else (
+        "the vehicle description" if len(described) == len(mounts) else
+        f"the bag's TF, {', '.join(described)} from the vehicle description")
+    return mounts, source
+
+
+def read_messages_between(bag, path: str, topic: str, end=None):
+    """``read_messages`` of one topic up to the bag time ``end`` (None: all of it)."""
+    for item in read_messages(bag, path, [topic], error=BagError):
+        if end is not None and item[2] > end:
+            return
+        yield item
+
+
+def _stop_statuses(bag, path: str, limit: int) -> Tuple[List[object], int]:
+    out, prev, count = [], None, 0
+    for _, m, _ in read_messages(bag, path, [GUARD_TOPIC], error=BagError):
+        if m.action in (STOP, FAULT) and m.action != prev:
+            count += 1
+            if len(out) < limit:
+                out.append(m)
+        prev = m.action
+    return out, count
+
+
+def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str, str]],
+                     limit: int = MAX_VIEWS) -> Tuple[List[StopScene], int]:
+    """The first ``limit`` stops of the bag as scenes, and how many stops it holds.
+    ``scanners``: (topic, laser frame) of each laser the guard reads."""
+    import rospy
+
+    from quadrivio_navigation.fields import scan_points
+
+    have = bag.get_type_and_topic_info().topics
+    if GUARD_TOPIC not in have:
+        return [], 0
+    statuses, count = _stop_statuses(bag, path, limit)
+    if not statuses:
+        return [], count
+    topics = {("/" + t.lstrip("/")): frame for t, frame in scanners}
+    present = [t for t in topics if t in have]
+    named: Dict[str, str] = {}  # the frame each recorded laser's scans name (else the configured one)
+    if present:
+        for topic, m, _ in read_messages(bag, path, present, error=BagError):
+            named.setdefault(topic, m.header.frame_id.lstrip("/") or topics[topic])
+            if len(named) == len(present):
+                break
+    frames = sorted(set(named.values()))
+    mounts, source = laser_mounts(bag, path, frames, vehicle)
+    pose_series = run.ground_truth if len(run.ground_truth) else run.estimate
+    pose_source = "true pose" if len(run.ground_truth) else "estimated pose"
+    fixed = map_points(run.map)
+    scenes = []
+    for st in statuses:
+        t = st.header.stamp.to_sec()
+        judged = "/" + st.scanner.lstrip("/") if st.scanner else ""
+        want = st.scan_stamp.to_sec()
+        best: Dict[str, object] = {}
+        if present:
+            start, end = rospy.Time.from_sec(max(0.0, t - WINDOW)), rospy.Time.from_sec(t + 0.05)
+            for topic, m, _ in bag.read_messages(topics=present, start_time=start, end_time=end):
+                stamp = m.header.stamp.to_sec()
+                if topic == judged and want > 0.0:
+                    if abs(stamp - want) < 1e-6:
+                        best[topic] = m
+                elif stamp <= t + 1e-9:
+                    best[topic] = m  # the newest up to the stop (messages come in time order)
+        scans, ages = {}, {}
+        for topic, m in best.items():
+            frame = m.header.frame_id.lstrip("/") or topics[topic]
+            mount = mounts.get(frame)
+            if mount is None:
+                continue
+            R, p = mount
+            pts = scan_points(m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max,
+                              (float(p[0]), float(p[1]), 0.0), rotation=R)
+            scans[topic.lstrip("/")] = pts.xy
+            ages[topic.lstrip("/")] = t - m.header.stamp.to_sec()
+        truth = mapped = None
+        if len(pose_series):
+            x, y, yaw = (_at(pose_series, k, t) for k in ("x", "y", "yaw"))
+            if all(map(math.isfinite, (x, y, yaw))):
+                if len(run.ground_truth) and run.actors:
+                    truth = to_base_link(actors_at(run.actors, t), x, y, yaw)
+                if len(fixed):
+                    near = fixed[np.hypot(fixed[:, 0] - x, fixed[:, 1] - y) <= MAP_RADIUS]
+                    mapped = to_base_link(near, x, y, yaw)
+        nearest = (st.nearest.x, st.nearest.y) if st.has_nearest else None
+        scenes.append(StopScene(t, int(st.action), st.field, st.reason, st.scanner, int(st.direction),
+                                st.requested_speed, st.measured_speed, st.requested_handlebar, st.measured_handlebar,
+                                st.protective_distance, st.warning_distance, st.free_distance, nearest, scans, ages,
+                                source, truth, mapped, pose_source))
+    return scenes, count

@@ -1,0 +1,176 @@
+"""What the guard saw when it stopped: one picture per stop, in the vehicle's own frame.
+
+For each protective or fail-safe stop the guard published on ``/guard/status``: the scans of
+both lasers at that moment (their points through the lasers' mounts, in ``base_link``), the
+vehicle's body and the footprint the guard guards (the body grown by its ``padding``), the
+protective and warning fields as the guard swept them, the point it named nearest and, when
+the run has them, the true outlines of the actors and obstacles (simulation) and the map's
+occupied cells about the pose. A field is the footprint swept along the arc of the measured
+handlebar turning toward the requested one at the servo's rate (:func:`fields.sweep`), over
+the status's protective and warning distances: reconstructed from what the status carries
+(the guard publishes the distances and handlebars, not the polygons), so it is the guard's
+field to within its sweep step. Without ``rviz``: this is what a field user looks at to learn
+why the vehicle stopped, from their own bag.
+
+ROS-free: :mod:`quadrivio.ros.stop_scenes` reads the scenes from a bag.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from quadrivio_runtime.files import atomic_path
+
+STOP, FAULT = 2, 4
+NAMES = {STOP: "protective stop", FAULT: "fail-safe stop"}
+MAX_VIEWS = 12  # pictures per run at most (the first stops): a run that stops 200 times needs a table, not 200 PNGs
+
+
+@dataclass
+class StopScene:
+    """One stop as the guard published it, with what the lasers returned at that moment."""
+    t: float  # [s] the status's stamp
+    action: int  # STOP or FAULT
+    field_kind: str  # the field it was in: protective | warning | zone | ""
+    reason: str
+    scanner: str  # the scan topic that saw it ("" for a fail-safe stop)
+    direction: int  # +1 forward, -1 reverse, 0 standing
+    requested_speed: float  # [m/s]
+    measured_speed: float  # [m/s]
+    requested_handlebar: float  # [rad]
+    measured_handlebar: float  # [rad]
+    protective: float  # [m] the protective field's length
+    warning: float  # [m] the warning field's length
+    free: float  # [m] how far the footprint got before a point (inf: nothing)
+    nearest: Optional[Tuple[float, float]]  # [m] base_link
+    scans: Dict[str, np.ndarray] = field(default_factory=dict)  # topic -> N x 2 points in base_link
+    scan_ages: Dict[str, float] = field(default_factory=dict)  # topic -> [s] stop time minus the scan's stamp
+    mounts: str = ""  # where the lasers' mounts came from (the bag's /tf_static, or the vehicle description)
+    truth: Optional[np.ndarray] = None  # outline points of the true actors and obstacles, base_link (simulation)
+    mapped: Optional[np.ndarray] = None  # occupied map cells about the pose, base_link
+    pose_source: str = ""  # what placed the map and the truth: "true pose" or "estimated pose"
+
+
+def to_base_link(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
+    """Map-frame points (N x 2) into the frame of a vehicle at pose (x, y, yaw)."""
+    if len(points) == 0:
+        return np.zeros((0, 2))
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = points[:, 0] - x, points[:, 1] - y
+    return np.column_stack([c * dx + s * dy, -s * dx + c * dy])
+
+
+def field_poses(scene: StopScene, vehicle, length: float, speed: float, ds: float) -> np.ndarray:
+    """The sweep of a field ``length`` long at ``speed``, from the stop's handlebars."""
+    from quadrivio_navigation.fields import sweep
+
+    h0 = scene.measured_handlebar if math.isfinite(scene.measured_handlebar) else 0.0
+    h1 = scene.requested_handlebar if math.isfinite(scene.requested_handlebar) else h0
+    return sweep(scene.direction or 1, h0, h1, vehicle.steering.max_rate, abs(speed), max(length, 0.0), ds,
+                 vehicle.wheelbase, vehicle.steering.ratio)
+
+
+def swept_mask(fp, poses: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Which cells of the grid ``xs`` x ``ys`` (cell centres, base_link) any footprint of the
+    sweep covers (len(ys) x len(xs), for ``contourf``)."""
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.column_stack([gx.ravel(), gy.ravel()])
+    covered = np.zeros(len(pts), dtype=bool)
+    for x, y, th in poses:
+        c, s = math.cos(th), math.sin(th)
+        u = c * (pts[:, 0] - x) + s * (pts[:, 1] - y)
+        w = -s * (pts[:, 0] - x) + c * (pts[:, 1] - y)
+        covered |= (u <= fp.front) & (u >= -fp.rear) & (w <= fp.left) & (w >= -fp.right)
+    return covered.reshape(gx.shape)
+
+
+def _extent(scene: StopScene, fp, reach: float) -> Tuple[float, float, float, float]:
+    ahead = max(6.0, fp.front + max(scene.warning, scene.protective) + 2.0)
+    behind = max(4.0, fp.rear + 2.0)
+    if scene.direction < 0:  # reversing: the fields lie behind
+        ahead, behind = max(4.0, fp.front + 2.0), max(6.0, fp.rear + max(scene.warning, scene.protective) + 2.0)
+    side = max(4.0, 0.6 * reach)
+    return -behind, ahead, -side, side
+
+
+def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", ds: float = 0.05) -> None:
+    """The stop's picture (PNG) at ``path``, written whole or not at all."""
+    from matplotlib.patches import Rectangle
+
+    from quadrivio_navigation.costmap import Footprint
+
+    from .plots import _plt
+
+    plt = _plt()
+    body, fp = Footprint.from_vehicle(vehicle), Footprint.from_vehicle(vehicle, padding)
+    warn_poses = field_poses(scene, vehicle, scene.warning, scene.requested_speed or scene.measured_speed, ds)
+    prot_poses = field_poses(scene, vehicle, scene.protective, scene.measured_speed, ds)
+    reach = float(np.max(np.abs(warn_poses[:, 1]))) + fp.left + fp.right if len(warn_poses) else 0.0
+    x0, x1, y0, y1 = _extent(scene, fp, reach)
+    fig, ax = plt.subplots(figsize=(11.5, 8.5 * (y1 - y0) / (x1 - x0) + 1.4))
+    xs, ys = np.arange(x0, x1, 0.04) + 0.02, np.arange(y0, y1, 0.04) + 0.02
+    for poses, length, colour, label, alpha in ((warn_poses, scene.warning, "orange", "warning field", 0.22),
+                                                (prot_poses, scene.protective, "red", "protective field", 0.30)):
+        if not length > 0.0:
+            continue
+        mask = swept_mask(fp, poses, xs, ys).astype(float)
+        if mask.any():
+            ax.contourf(xs, ys, mask, levels=[0.5, 1.5], colors=[colour], alpha=alpha)
+            ax.contour(xs, ys, mask, levels=[0.5], colors=[colour], linewidths=1.0)
+            ax.plot([], [], "s", color=colour, alpha=0.5, ms=9, label=f"{label} ({length:.2f} m)")
+    ax.add_patch(Rectangle((-fp.rear, -fp.right), fp.rear + fp.front, fp.left + fp.right, fill=False, ec="k", ls="--",
+                           lw=0.8, label=f"footprint guarded (+{padding:.2f} m)"))
+    ax.add_patch(Rectangle((-body.rear, -body.right), body.rear + body.front, body.left + body.right, fc="0.75",
+                           ec="k", lw=1.0, label="vehicle"))
+    ax.annotate("", xy=(0.9 if scene.direction >= 0 else -0.9, 0.0), xytext=(0.0, 0.0),
+                arrowprops=dict(arrowstyle="->", lw=1.5))
+    if scene.mapped is not None and len(scene.mapped):
+        ax.plot(scene.mapped[:, 0], scene.mapped[:, 1], "s", color="0.45", ms=2.5, label=f"map ({scene.pose_source})")
+    if scene.truth is not None and len(scene.truth):
+        ax.plot(scene.truth[:, 0], scene.truth[:, 1], ".", color="m", ms=1.5, label=f"actors ({scene.pose_source})")
+    colours = ("tab:blue", "tab:green", "tab:cyan", "tab:olive")
+    for k, (topic, pts) in enumerate(sorted(scene.scans.items())):
+        age = scene.scan_ages.get(topic, math.nan)
+        ax.plot(pts[:, 0], pts[:, 1], ".", color=colours[k % len(colours)], ms=3,
+                label=f"{topic} ({len(pts)} returns, {1e3 * age:.0f} ms before)")
+    if scene.nearest is not None:
+        ax.plot(*scene.nearest, "X", color="k", ms=11, mec="w", label="nearest (the guard's)")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    ax.grid(True, alpha=0.3)
+    ax.set_xlabel("x forward [m] (base_link)")
+    ax.set_ylabel("y left [m]")
+    free = "nothing" if not math.isfinite(scene.free) else f"{scene.free:.2f} m"
+    head = f"{title}: " if title else ""
+    ax.set_title(f"{head}{NAMES.get(scene.action, scene.action)} at t = {scene.t:.2f} s"
+                 + (f" ({scene.field_kind} field, {scene.scanner})" if scene.field_kind else ""), fontsize=10)
+    text = (f"{scene.reason}\nspeed asked {scene.requested_speed:+.2f}, measured {scene.measured_speed:+.2f} m/s; "
+            f"handlebar asked {scene.requested_handlebar:+.3f}, measured {scene.measured_handlebar:+.3f} rad\n"
+            f"free distance {free}; fields {scene.protective:.2f} / {scene.warning:.2f} m "
+            f"(reconstructed from the status); laser mounts: {scene.mounts}")
+    fig.text(0.01, 0.005, text, fontsize=7, va="bottom", wrap=True)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.85)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
+    plt.close(fig)
+
+
+def write_views(scenes: List[StopScene], vehicle, padding: float, out_dir: str, title: str = "") -> List[str]:
+    """``out_dir/stops/stop_NN_<t>s.png`` for the first :data:`MAX_VIEWS` scenes; their names."""
+    if not scenes:
+        return []
+    folder = os.path.join(out_dir, "stops")
+    os.makedirs(folder, exist_ok=True)
+    made = []
+    for k, scene in enumerate(scenes[:MAX_VIEWS], 1):
+        name = f"stop_{k:02d}_{scene.t:.2f}s.png"
+        draw(scene, vehicle, padding, os.path.join(folder, name), title)
+        made.append(os.path.join("stops", name))
+    return made

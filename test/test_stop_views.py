@@ -1,0 +1,144 @@
+"""What the guard saw when it stopped (quadrivio.stop_views, quadrivio.ros.stop_scenes): the
+geometry by hand, the lasers' mounts from the bag's TF (a chain, a laser upside down), and
+analyze drawing one picture per stop from a bag."""
+import math
+
+import numpy as np
+import pytest
+import rosbag
+import rospy
+from geometry_msgs.msg import TransformStamped
+from sensor_msgs.msg import LaserScan
+from tf2_msgs.msg import TFMessage
+
+from quadrivio.metrics import RunData, Series
+from quadrivio.ros import analyze_cli
+from quadrivio.ros.bag import BagError, open_bag
+from quadrivio.ros.stop_scenes import chain_to, laser_mounts, read_stop_scenes
+from quadrivio.stop_views import MAX_VIEWS, StopScene, field_poses, swept_mask, to_base_link
+from quadrivio_description.vehicle import load_vehicle
+from quadrivio_navigation.costmap import Footprint
+from quadrivio_navigation.msg import GuardStatus
+
+V = load_vehicle()
+SCANNERS = [("scan/front", "laser_front"), ("scan/rear", "laser_rear")]
+
+
+def test_to_base_link_by_hand():
+    pts = np.array([[11.0, 5.0], [10.0, 7.0]])
+    local = to_base_link(pts, 10.0, 5.0, math.pi / 2)  # facing +y: ahead is +y in the map
+    assert local == pytest.approx(np.array([[0.0, -1.0], [2.0, 0.0]]))
+
+
+def test_a_straight_field_covers_the_swept_rectangle():
+    fp = Footprint.from_vehicle(V, 0.15)
+    scene = StopScene(1.0, 2, "protective", "", "scan/front", 1, 2.0, 2.0, 0.0, 0.0, 2.0, 5.0, 1.5, (3.0, 0.0))
+    poses = field_poses(scene, V, scene.protective, scene.measured_speed, 0.05)
+    assert poses[-1] == pytest.approx([2.0, 0.0, 0.0], abs=1e-9)
+    xs, ys = np.array([-fp.rear + 0.01, fp.front + 1.99, fp.front + 2.01]), np.array([0.0, fp.left - 0.01, fp.left + 0.01])
+    mask = swept_mask(fp, poses, xs, ys)
+    # rows: y; columns: x. Inside from the rear edge to 2 m beyond the front, within the width
+    assert mask.tolist() == [[True, True, False], [True, True, False], [False, False, False]]
+    # reversing: the field lies behind
+    back = StopScene(1.0, 2, "protective", "", "scan/rear", -1, -1.0, -1.0, 0.0, 0.0, 1.0, 2.0, 0.5, None)
+    assert field_poses(back, V, 1.0, -1.0, 0.05)[-1] == pytest.approx([-1.0, 0.0, 0.0], abs=1e-9)
+
+
+def _tf(parent, child, xyz, q):
+    tr = TransformStamped()
+    tr.header.frame_id, tr.child_frame_id = parent, child
+    tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z = xyz
+    tr.transform.rotation.x, tr.transform.rotation.y, tr.transform.rotation.z, tr.transform.rotation.w = q
+    return tr
+
+
+def _scan(t, frame, ranges, angle_min=-math.pi / 2, inc=math.pi / 2):
+    s = LaserScan()
+    s.header.stamp, s.header.frame_id = rospy.Time.from_sec(t), frame
+    s.angle_min, s.angle_increment = angle_min, inc
+    s.angle_max = angle_min + inc * (len(ranges) - 1)
+    s.range_min, s.range_max = 0.1, 30.0
+    s.ranges = ranges
+    return s
+
+
+def _status(t, action, scan_stamp=0.0, nearest=None):
+    g = GuardStatus()
+    g.header.stamp = rospy.Time.from_sec(t)
+    g.action = action
+    g.direction = 1
+    g.requested_speed = g.measured_speed = 1.5 if action != 2 else 1.4
+    g.protective_distance, g.warning_distance, g.free_distance = 1.2, 3.5, 0.9
+    if action == 2:
+        g.field, g.reason, g.scanner = "protective", "obstacle 0.90 m along the path", "scan/front"
+        g.scan_stamp = rospy.Time.from_sec(scan_stamp)
+    if nearest is not None:
+        g.has_nearest, g.nearest.x, g.nearest.y = True, nearest[0], nearest[1]
+    return g
+
+
+def _bag(path, stops=1, tf=True):
+    """A laser upside down (roll pi) on a bracket 1.5 m ahead of base_link: a return 2 m
+    along its +90 deg ray lies 2 m to the *right* of the vehicle. Scans at 10 Hz; the guard
+    stops at 1.05 s on the 1.0 s scan, then ``stops - 1`` more times a second apart."""
+    with rosbag.Bag(str(path), "w") as b:
+        if tf:
+            b.write("/tf_static", TFMessage(transforms=[
+                _tf("base_link", "bracket", (1.5, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0)),
+                _tf("bracket", "laser_front", (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))]), rospy.Time(0.001))
+        for k in range(1, 10 * stops + 11):
+            t = 0.1 * k
+            b.write("/scan/front", _scan(t, "laser_front", [math.inf, 5.0 + 0.001 * k, 2.0]), rospy.Time.from_sec(t))
+        actions = []
+        for k in range(stops):
+            actions += [(1.0 + k - 0.5, 0), (1.05 + k, 2), (1.1 + k, 3)]
+        for t, a in actions:
+            scan = round(t - 0.05, 1) if a == 2 else 0.0
+            b.write("/guard/status", _status(t, a, scan, nearest=(2.4, 0.0) if a == 2 else None),
+                    rospy.Time.from_sec(t))
+
+
+def test_the_mounts_come_from_the_bags_tf_chain(tmp_path):
+    _bag(tmp_path / "a.bag")
+    with open_bag(str(tmp_path / "a.bag"), BagError) as b:
+        mounts, source = laser_mounts(b, str(tmp_path / "a.bag"), ["laser_front"], V)
+    R, p = mounts["laser_front"]
+    assert p == pytest.approx([1.5, 0.0, 0.3])
+    assert R == pytest.approx(np.diag([1.0, -1.0, -1.0]), abs=1e-12)  # upside down
+    assert source == "the bag's TF"
+    edges = {"a": ("b", np.eye(3), np.array([1.0, 0, 0])), "b": ("a", np.eye(3), np.zeros(3))}
+    assert chain_to("a", edges, "base_link") is None  # a loop, not a hang
+
+
+def test_without_tf_the_mounts_come_from_the_vehicle_description(tmp_path):
+    _bag(tmp_path / "a.bag", tf=False)
+    with open_bag(str(tmp_path / "a.bag"), BagError) as b:
+        mounts, source = laser_mounts(b, str(tmp_path / "a.bag"), ["laser_front", "laser_rear"], V)
+    assert mounts["laser_front"][1] == pytest.approx(V.sensors["laser_front"].xyz)
+    assert mounts["laser_rear"][0][:2, :2] == pytest.approx(-np.eye(2), abs=1e-12)  # yaw pi: looks backward
+    assert source == "the vehicle description"
+
+
+def test_a_stop_is_read_with_the_scan_it_judged(tmp_path):
+    path = tmp_path / "a.bag"
+    _bag(path)
+    run = RunData(Series.empty(), Series.empty(), Series.empty(), Series.empty(), None, Series.empty())
+    with open_bag(str(path), BagError) as b:
+        scenes, count = read_stop_scenes(b, str(path), run, V, SCANNERS)
+    assert count == 1 and len(scenes) == 1
+    s = scenes[0]
+    assert (s.t, s.action, s.field_kind, s.scanner, s.nearest) == (pytest.approx(1.05), 2, "protective", "scan/front",
+                                                                   (2.4, 0.0))
+    assert s.scan_ages == {"scan/front": pytest.approx(0.05)}  # the 1.0 s scan the status names, not the newest
+    pts = s.scans["scan/front"]
+    # rays -90, 0, +90 deg: +inf (nothing), 5.010 m ahead, 2 m along +90 which the roll turns to the right
+    assert pts == pytest.approx(np.array([[1.5 + 5.01, 0.0], [1.5, -2.0]]), abs=1e-6)
+
+
+def test_analyze_draws_each_stop_up_to_a_limit(tmp_path, capsys):
+    path = tmp_path / "run.bag"
+    _bag(path, stops=MAX_VIEWS + 2)
+    assert analyze_cli.main([str(path), "--out", str(tmp_path / "a")]) == 0
+    views = sorted(p.name for p in (tmp_path / "a" / "stops").iterdir())
+    assert len(views) == MAX_VIEWS and views[0] == "stop_01_1.05s.png" and views[-1] == f"stop_{MAX_VIEWS}_12.05s.png"
+    assert f"(the first {MAX_VIEWS} of {MAX_VIEWS + 2} stops)" in capsys.readouterr().out
