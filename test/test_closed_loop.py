@@ -95,3 +95,24 @@ def test_campaign_refuses_options_that_do_not_go_together(argv, message, capsys)
     with pytest.raises(SystemExit):
         campaign.parse(["figure_eight", "--out", "x"] + argv)
     assert message in capsys.readouterr().err
+
+
+def test_each_stop_is_kept_with_what_the_guard_saw_and_drawn(tmp_path):
+    """The in-process run keeps, for each of the guard's stops, the points it last read from
+    each laser (as stop_views draws them): a campaign's notable run shows why it stopped."""
+    from quadrivio.obstacle_metrics import obstacle_metrics
+    from quadrivio.stop_views import STOP
+
+    s = load_scenario("dog_runs_out")
+    r = closed_loop.run(s, 1, max_duration=12.0)
+    m = obstacle_metrics(r.run, scenario_vehicle(s))
+    assert r.stops == m["protective_stops"] + m["fault_stops"] >= 1
+    first = r.stop_scenes[0]
+    assert first.action == STOP and first.field_kind == "protective" and first.scanner == "scan/front"
+    assert first.nearest is not None and 0.0 <= first.free <= first.protective
+    front = first.scans["scan/front"]
+    # the nearest point the guard named is one of the front laser's points it read
+    assert np.min(np.hypot(front[:, 0] - first.nearest[0], front[:, 1] - first.nearest[1])) < 1e-9
+    assert 0.0 <= first.scan_ages["scan/front"] <= 0.25
+    made = closed_loop.plot_run(r, s, 1, str(tmp_path))
+    assert f"stops/stop_01_{first.t:.2f}s.png" in made and (tmp_path / "stops").is_dir()

@@ -89,6 +89,8 @@ class ClosedLoopResult:
     cpu_s: float  # this process's CPU time over the run
     log: List[Tuple[float, str]]
     counters: Dict[str, object]
+    stop_scenes: List[object] = field(default_factory=list)  # the guard's first stops (stop_views.StopScene)
+    stops: int = 0  # how many stops (protective and fail-safe) in all
 
 
 _series = Series.from_rows
@@ -178,6 +180,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_sim.simulator import Simulator
     from quadrivio_sim.world import quat_to_rpy
     from quadrivio_terrain.terrain import known_heightfield
+
+    from .stop_views import MAX_VIEWS, StopScene
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
     v, site = scenario_vehicle(s, load_vehicle()), load_site()
@@ -363,6 +367,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
 
     def guard_status(t: float, d, requested: float, handlebar: float) -> None:
         st = guard.state
+        if d.action in (STOP, FAULT) and (not rec.guard or rec.guard[-1][1] != d.action):
+            stops[0] += 1
+            if len(stops[1]) < MAX_VIEWS:  # what it saw, for the stop's picture (stop_views)
+                stops[1].append(StopScene(
+                    t, d.action, d.field, d.reason, d.scanner, d.direction, requested,
+                    st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan,
+                    d.protective, d.warning, d.free, d.nearest, {k: xy for k, (_, xy) in seen_scans.items()},
+                    {k: t - stamp for k, (stamp, _) in seen_scans.items()}, "the vehicle description"))
         rec.guard.append((t, d.action, d.limit, d.free, d.protective, d.scan_stamp if math.isfinite(d.scan_stamp)
                           else 0.0, d.direction, requested, 1.0 if d.field == "zone" else 0.0,
                           st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan))
@@ -376,6 +388,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             guard_held[1] = t
 
     guard_held = [-1.0, None]  # the follower's held_until, the planner's held_since
+    seen_scans: Dict[str, Tuple[float, np.ndarray]] = {}  # topic -> (stamp, points in base_link) the guard last read
+    stops: List[object] = [0, []]  # how many stops, the first MAX_VIEWS as scenes
     held_points = HeldPoints()
 
     def send(t: float, speed: float, handlebar: float, brake: float) -> None:
@@ -429,6 +443,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         points = scan_points(rr, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
                              (float(t_b[0]), float(t_b[1]), yaw_b), MAX_RANGE, R_b)
         guard.on_scan(sc.topic, stamp, points, "")
+        seen_scans[sc.topic] = (stamp, points.xy)
         fresh = request is not None and t - request[0] <= gnode.request_timeout
         speed, hb, brake = (request[1], request[2], request[3]) if fresh else (0.0, 0.0, 0.0)
         d = guard.decide(t, speed, hb)
@@ -626,7 +641,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         contacts=contacts if (rec.actors or grid is not None) else None,
     )
     return ClosedLoopResult(run_data, outcome, sim_s, time.perf_counter() - wall0, time.process_time() - cpu0,
-                            rec.log, counters)
+                            rec.log, counters, stops[1], stops[0])
 
 
 def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None,
@@ -660,12 +675,23 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
                                     indent=2, default=float) + "\n")
     put("log.txt", "".join(f"{t:9.3f} {line}\n" for t, line in r.log))
     if plots:
-        plot_run(r, s, seed, out)
+        plot_run(r, s, seed, out, v)
     return m
 
 
-def plot_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str) -> List[str]:
-    """A run's plots (trajectory, errors, control, calibration, guard) in ``out``."""
-    from .plots import all_plots
+def plot_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None) -> List[str]:
+    """A run's plots (trajectory, errors, control, calibration, guard) in ``out``, and a
+    picture of each of the guard's first stops (``stops/``, :mod:`quadrivio.stop_views`)."""
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_navigation.guard import GuardParams
 
-    return all_plots(r.run, out, f"{s.name}, seed {seed} (in process)")
+    from .plots import all_plots
+    from .stop_views import add_world, write_views
+
+    title = f"{s.name}, seed {seed} (in process)"
+    made = all_plots(r.run, out, title)
+    if r.stop_scenes:
+        v = vehicle if vehicle is not None else scenario_vehicle(s, load_vehicle())
+        padding = _config(GuardParams, "quadrivio_navigation", "guard.yaml", s, "guard").padding
+        made += write_views([add_world(sc, r.run) for sc in r.stop_scenes], v, padding, out, title)
+    return made

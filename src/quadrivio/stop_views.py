@@ -65,6 +65,28 @@ def to_base_link(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarr
     return np.column_stack([c * dx + s * dy, -s * dx + c * dy])
 
 
+def add_world(scene: StopScene, run, radius: float = 20.0) -> StopScene:
+    """The run's world about the vehicle at the stop, in its frame: the true outlines of the
+    actors and obstacles (only with a ground truth) and the map's occupied cells within
+    ``radius``, placed by the true pose, or by the estimated one in a recording without it."""
+    from .obstacle_metrics import _at, actors_at, map_points
+
+    truth = len(run.ground_truth) > 0
+    poses = run.ground_truth if truth else run.estimate
+    if len(poses) == 0:
+        return scene
+    x, y, yaw = (_at(poses, k, scene.t) for k in ("x", "y", "yaw"))
+    if not all(map(math.isfinite, (x, y, yaw))):
+        return scene
+    scene.pose_source = "true pose" if truth else "estimated pose"
+    if truth and run.actors:
+        scene.truth = to_base_link(actors_at(run.actors, scene.t), x, y, yaw)
+    fixed = map_points(run.map)
+    if len(fixed):
+        scene.mapped = to_base_link(fixed[np.hypot(fixed[:, 0] - x, fixed[:, 1] - y) <= radius], x, y, yaw)
+    return scene
+
+
 def field_poses(scene: StopScene, vehicle, length: float, speed: float, ds: float) -> np.ndarray:
     """The sweep of a field ``length`` long at ``speed``, from the stop's handlebars."""
     from quadrivio_navigation.fields import sweep
@@ -153,7 +175,7 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
     text = (f"{scene.reason}\nspeed asked {scene.requested_speed:+.2f}, measured {scene.measured_speed:+.2f} m/s; "
             f"handlebar asked {scene.requested_handlebar:+.3f}, measured {scene.measured_handlebar:+.3f} rad\n"
             f"free distance {free}; fields {scene.protective:.2f} / {scene.warning:.2f} m "
-            f"(reconstructed from the status); laser mounts: {scene.mounts}")
+            f"(rebuilt from the guard's distances and handlebars); laser mounts: {scene.mounts}")
     fig.text(0.01, 0.005, text, fontsize=7, va="bottom", wrap=True)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, framealpha=0.85)
     fig.tight_layout(rect=(0, 0.08, 1, 1))

@@ -17,8 +17,7 @@ import numpy as np
 
 from quadrivio_recordings.ros.bag import read_messages
 
-from ..obstacle_metrics import _at, actors_at, map_points
-from ..stop_views import FAULT, MAX_VIEWS, STOP, StopScene, to_base_link
+from ..stop_views import FAULT, MAX_VIEWS, STOP, StopScene, add_world
 from .bag import BagError
 
 GUARD_TOPIC = "/guard/status"
@@ -140,9 +139,6 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
                 break
     frames = sorted(set(named.values()))
     mounts, source = laser_mounts(bag, path, frames, vehicle)
-    pose_series = run.ground_truth if len(run.ground_truth) else run.estimate
-    pose_source = "true pose" if len(run.ground_truth) else "estimated pose"
-    fixed = map_points(run.map)
     scenes = []
     for st in statuses:
         t = st.header.stamp.to_sec()
@@ -169,18 +165,9 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
                               (float(p[0]), float(p[1]), 0.0), rotation=R)
             scans[topic.lstrip("/")] = pts.xy
             ages[topic.lstrip("/")] = t - m.header.stamp.to_sec()
-        truth = mapped = None
-        if len(pose_series):
-            x, y, yaw = (_at(pose_series, k, t) for k in ("x", "y", "yaw"))
-            if all(map(math.isfinite, (x, y, yaw))):
-                if len(run.ground_truth) and run.actors:
-                    truth = to_base_link(actors_at(run.actors, t), x, y, yaw)
-                if len(fixed):
-                    near = fixed[np.hypot(fixed[:, 0] - x, fixed[:, 1] - y) <= MAP_RADIUS]
-                    mapped = to_base_link(near, x, y, yaw)
         nearest = (st.nearest.x, st.nearest.y) if st.has_nearest else None
-        scenes.append(StopScene(t, int(st.action), st.field, st.reason, st.scanner, int(st.direction),
-                                st.requested_speed, st.measured_speed, st.requested_handlebar, st.measured_handlebar,
-                                st.protective_distance, st.warning_distance, st.free_distance, nearest, scans, ages,
-                                source, truth, mapped, pose_source))
+        scenes.append(add_world(StopScene(t, int(st.action), st.field, st.reason, st.scanner, int(st.direction),
+                                          st.requested_speed, st.measured_speed, st.requested_handlebar,
+                                          st.measured_handlebar, st.protective_distance, st.warning_distance,
+                                          st.free_distance, nearest, scans, ages, source), run, MAP_RADIUS))
     return scenes, count
