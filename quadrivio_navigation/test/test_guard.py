@@ -231,6 +231,20 @@ def test_hold_until_clear_then_release_gradually(vehicle):
     assert actions[5.9][1] > 1.4
 
 
+def test_a_motion_no_laser_covers_is_a_fault(vehicle):
+    """A vehicle with one laser, ahead: forward is guarded, reversing blind, so refused."""
+    g = make_guard(vehicle, scanners=[{"topic": "scan/front", "frame": "laser_front", "covers": "forward"}])
+    g.on_state(1.0, 0.0, 0.0)
+    g.on_pitch(1.0, 0.0)
+    g.on_scan("scan/front", 1.0, scan([]))
+    assert g.decide(1.0, 1.0, 0.0).action == CLEAR
+    d = g.decide(1.0, -0.5, 0.0)
+    assert d.action == FAULT and d.reason == "no scanner covers reverse motion" and d.direction == -1
+    assert g.command(d, -0.5, 0.0, 0.0).speed == 0.0
+    g.on_state(1.1, -0.4, 0.0)  # already rolling backward (pushed, on a slope): still refused
+    assert g.decide(1.1, 0.0, 0.0).action == FAULT
+
+
 def test_silent_laser_stale_state_and_blindness_are_faults(vehicle):
     g = make_guard(vehicle, scan_timeout=0.35)
     feed(g, 1.0, 2.0)

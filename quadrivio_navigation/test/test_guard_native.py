@@ -152,10 +152,12 @@ def _compare(py, cpp):
     return actions
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", range(7))
 def test_decisions_match_the_python_core(seed):
     vehicle = load_vehicle()
     p = GuardParams()
+    if seed == 6:  # one laser, forward: reversing is blind (a fail-safe stop in both)
+        p = replace_nested(p, {"scanners": [{"topic": "scan/front", "frame": "laser_front", "covers": "forward"}]})
     if seed % 3 == 1:  # other values than ours: a faster brake, a longer margin, one scanner covering both ways
         p = replace_nested(p, {"brake_decel": 5.0, "margin": 0.6, "warning_margin": 1.5, "creep_margin": 0.7,
                                "clear_time": 0.3, "scanners": [{"topic": "scan/all", "frame": "laser", "covers": "both"}]})
@@ -315,7 +317,7 @@ def _wrapped(events, p, vehicle, hf=None):
     return _drive(NativeGuard(p, vehicle, hf, NodeParamsStub()), events, p, states), states
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", range(5))
 def test_the_wrapper_decides_as_the_python_guard(seed):
     """NativeGuard (guard_native.py: the C++ core through ctypes, what the closed loop in one
     process runs) on the random lives of the tests above: every decision's action, numbers,
@@ -327,6 +329,8 @@ def test_the_wrapper_decides_as_the_python_guard(seed):
                                "clear_time": 0.3, "scanners": [{"topic": "scan/all", "frame": "laser", "covers": "both"}]})
     if seed == 2:
         p = replace_nested(p, {"zone": [[-6.0, -6.0], [9.0, -5.0], [7.0, 8.0], [-5.0, 6.0]], "max_position_sd": 0.8})
+    if seed == 4:  # one laser, forward only
+        p = replace_nested(p, {"scanners": [{"topic": "scan/front", "frame": "laser_front", "covers": "forward"}]})
     hf = Heightfield(np.cumsum(np.random.default_rng(200 + seed).normal(0.01, 0.03, (61, 81)), axis=1), 0.25) \
         if seed % 2 else None
     events = _random_events(np.random.default_rng(50 + seed), p)

@@ -1081,6 +1081,11 @@ private:
 
   std::string scannerFault(double now, int direction) const
   {
+    bool covered = false;  // a vehicle with one laser, reversing: blind that way
+    for (const Scanner& s : p_.scanners)
+      covered = covered || covers(s, direction);
+    if (!covered)
+      return std::string("no scanner covers ") + (direction > 0 ? "forward" : "reverse") + " motion";
     for (size_t i = 0; i < p_.scanners.size(); ++i)
     {
       const Scanner& s = p_.scanners[i];

@@ -477,6 +477,8 @@ class Guard:
 
     def _scanner_fault(self, now: float, direction: int) -> Optional[str]:
         p = self.p
+        if not any(self._covers(s, direction) for s in p.scanners):  # a vehicle with one laser, reversing
+            return f"no scanner covers {'forward' if direction > 0 else 'reverse'} motion"
         for s in p.scanners:
             if not self._covers(s, direction):
                 continue
