@@ -245,3 +245,38 @@ def test_a_long_recording_shows_progress(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(analyze_cli, "LONG_BAG_S", 601.0)  # shorter than that: silent
     assert analyze_cli.main([str(bag), "--out", str(tmp_path / "b")]) == 0
     assert "[analyze] reading" not in capsys.readouterr().err
+
+
+def test_topics_stamped_on_another_clock_are_named(tmp_path, capsys):
+    """A driver stamping with GPS time or its device's clock, or not at all: its topic's errors
+    against the others would compare different moments. analyze names it; the topics on the
+    recorder's clock (a 0.2 s late fix included) pass."""
+    from quadrivio.ros.bag import read_run
+    from quadrivio_description.site import load_site
+    from quadrivio_description.vehicle import load_vehicle
+
+    bag = tmp_path / "clocks.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(200):
+            t = rospy.Time.from_sec(1_700_000_000.0 + 0.1 * k)  # a wall-clock recording
+            est = Odometry()
+            est.header.stamp, est.header.frame_id = t, "map"
+            est.pose.pose.orientation.w = 1.0
+            b.write("/localization/odom", est, t)
+            fix = NavSatFix()
+            fix.header.stamp, fix.latitude, fix.longitude = t - rospy.Duration.from_sec(0.2), 45.478, 9.2276
+            b.write("/gps/fix", fix, t)
+            st = VehicleState()  # stamped 0: the driver never set it
+            b.write("/vehicle/state", st, t)
+            gt = Odometry()  # GPS time: 18 leap seconds ahead
+            gt.header.stamp, gt.header.frame_id = t + rospy.Duration(18), "map"
+            gt.pose.pose.orientation.w = 1.0
+            b.write("/ground_truth/odom", gt, t)
+    run = read_run(str(bag), load_site(), load_vehicle())
+    assert len(run.warnings) == 2
+    gt_w, state_w = run.warnings
+    assert gt_w.startswith("/ground_truth/odom: its stamps are +18 s") and "another clock" in gt_w
+    assert state_w.startswith("/vehicle/state:") and "200 of its first 200 messages are stamped 0" in state_w
+    assert analyze_cli.main([str(bag), "--out", str(tmp_path / "a")]) == 0
+    err = capsys.readouterr().err
+    assert err.count("[analyze] WARNING:") == 2 and "/gps/fix" not in err

@@ -72,6 +72,7 @@ class RunData:
     paths: list = field(default_factory=list)  # every path received: [(t, N x 2)] (replans)
     local_marks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # local_obstacles' marks, all run
     gps_decisions: list = field(default_factory=list)  # localization/gps_decisions: [(fix t, used, reason, d2)]
+    warnings: list = field(default_factory=list)  # what reading the recording found suspect (its clocks)
 
 
 def _interp_pose(gt: Series, t: np.ndarray):

@@ -111,6 +111,9 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     if views and stops > len(views):
         views.append(f"(the first {len(views)} of {stops} stops)")
     made += views
+    if not quiet:
+        for w in run.warnings:
+            print(f"[analyze] WARNING: {w}", file=sys.stderr)
     if not quiet and missing:
         print(f"[analyze] {bag} lacks {len(missing)} topic(s) the analysis uses; null or not plotted: "
               + "; ".join(missing))

@@ -96,6 +96,28 @@ def _opened(path: str, bag=None):
     return contextlib.nullcontext(bag) if bag is not None else open_bag(path, BagError)
 
 
+CLOCK_SAMPLES = 500  # messages of each topic whose stamps are compared with their recording times
+CLOCK_TOLERANCE = 5.0  # [s] a topic's median stamp further than this from when it was recorded: another clock
+
+
+def clock_warnings(offsets: Dict[str, List[float]], tolerance: float = CLOCK_TOLERANCE) -> List[str]:
+    """The topics whose header stamps are not on the recorder's clock: the median of
+    (stamp - recording time) beyond ``tolerance``. A driver stamping with its device's own
+    time, GPS time or not at all (0) would misalign its topic against the others: every
+    error computed across them would compare different moments."""
+    out = []
+    for topic in sorted(offsets):
+        d = float(np.median(offsets[topic])) if offsets[topic] else 0.0
+        if abs(d) <= tolerance:
+            continue
+        zero = sum(1 for o in offsets[topic] if o <= -1e8)  # a stamp of 0 in a recording of ROS time
+        why = (f"{zero} of its first {len(offsets[topic])} messages are stamped 0 (unset)"
+               if zero > len(offsets[topic]) // 2 else "stamped on another clock than the recorder's?")
+        out.append(f"{topic}: its stamps are {d:+.6g} s from when they were recorded (median): {why} The "
+                   f"metrics align topics by their stamps, so those across it compare different moments")
+    return out
+
+
 def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None,
              progress: Optional[Callable[[float, float], None]] = None) -> RunData:
     """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state;
@@ -117,6 +139,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
     contacts = None
     decisions: List[tuple] = []  # (fix stamp, used, reason, d2) of localization/gps_decisions
     by_topic = {v: k for k, v in topics.items()}
+    offsets: Dict[str, List[float]] = defaultdict(list)  # topic -> header stamp less recording time, the first ones
     with _opened(path, bag) as bag:
         t_begin, span, step, next_report = 0.0, 0.0, math.inf, math.inf
         if progress is not None:
@@ -163,6 +186,8 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
                     contacts = (contacts or []) + [(m.header.stamp.to_sec(), m.body, m.kind, m.speed)]
                     continue
                 t = m.header.stamp.to_sec()
+                if len(offsets[topic]) < CLOCK_SAMPLES:
+                    offsets[topic].append(t - t_recv.to_sec())
                 if kind in ("ground_truth", "estimate", "predicted"):
                     p = m.pose.pose
                     rows[kind].append((t, p.position.x, p.position.y, _yaw(p.orientation), m.twist.twist.linear.x,
@@ -210,6 +235,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
         setpoint=_series(rows["setpoint"], ("speed", "handlebar", "brake")),
         vehicle=_series(rows["vehicle"], ("speed", "handlebar")),
         calibration=_series(rows["calibration"], cal_cols),
+        warnings=clock_warnings(offsets),
         goal=goal,
         map=grid,
         planner=_series(rows["planner"], ("state", "planning_time", "length")),
