@@ -275,8 +275,48 @@ def test_topics_stamped_on_another_clock_are_named(tmp_path, capsys):
     run = read_run(str(bag), load_site(), load_vehicle())
     assert len(run.warnings) == 2
     gt_w, state_w = run.warnings
-    assert gt_w.startswith("/ground_truth/odom: its stamps are +18 s") and "another clock" in gt_w
+    assert gt_w.startswith("/ground_truth/odom: its stamps are +18.1 s off the other topics'") and "another clock" in gt_w
     assert state_w.startswith("/vehicle/state:") and "200 of its first 200 messages are stamped 0" in state_w
     assert analyze_cli.main([str(bag), "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     assert err.count("[analyze] WARNING:") == 2 and "/gps/fix" not in err
+    # every topic on one other clock (a device's, 1000 s ahead of the recorder): consistent
+    same = tmp_path / "same.bag"
+    with rosbag.Bag(str(same), "w") as b:
+        for k in range(50):
+            t = rospy.Time.from_sec(100.0 + 0.1 * k)
+            for topic in ("/localization/odom", "/ground_truth/odom"):
+                m = Odometry()
+                m.header.stamp = t + rospy.Duration(1000)
+                m.pose.pose.orientation.w = 1.0
+                b.write(topic, m, t)
+    assert read_run(str(same), load_site(), load_vehicle()).warnings == []
+
+
+def test_replay_refuses_an_imu_stamped_on_its_own_clock(tmp_path, capsys):
+    """The smoother fuses by stamps: an IMU on its device's clock (1000 s ahead of the rest)
+    would be fused with fixes and wheel speeds of other moments. replay refuses, naming the
+    topic and the mapping key that reads it by its recording time; nothing is written."""
+    bag = tmp_path / "device_clock.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(600):
+            t = rospy.Time(1.0 + 0.01 * k)
+            imu = Imu()
+            imu.header.stamp = t + rospy.Duration(1000)
+            imu.linear_acceleration.z = 9.81
+            b.write("/imu/data", imu, t)
+            st = VehicleState()
+            st.header.stamp = t
+            b.write("/vehicle/state", st, t)
+            mag = MagneticField()
+            mag.header.stamp, mag.magnetic_field.x, mag.magnetic_field.z = t, 2.2e-5, -4.0e-5
+            b.write("/imu/mag", mag, t)
+            if k % 20 == 0:
+                fix = NavSatFix()
+                fix.header.stamp, fix.latitude, fix.longitude = t, 45.478, 9.2276
+                b.write("/gps/fix", fix, t)
+    out = tmp_path / "replayed.bag"
+    assert replay_cli.main([str(bag), "--out", str(out), "--quiet"]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert "/imu/data: its stamps are +1000 s off the other topics'" in line and "stamp: receipt" in line
+    assert not out.exists()

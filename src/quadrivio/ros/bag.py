@@ -11,6 +11,7 @@ from typing import Callable, Dict, Iterable, List, Optional
 import numpy as np
 
 from quadrivio_description.frames import yaw_from_quaternion
+from quadrivio_recordings.clocks import clock_warnings
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import SiteParams
 from quadrivio_description.vehicle import VehicleParams
@@ -97,25 +98,6 @@ def _opened(path: str, bag=None):
 
 
 CLOCK_SAMPLES = 500  # messages of each topic whose stamps are compared with their recording times
-CLOCK_TOLERANCE = 5.0  # [s] a topic's median stamp further than this from when it was recorded: another clock
-
-
-def clock_warnings(offsets: Dict[str, List[float]], tolerance: float = CLOCK_TOLERANCE) -> List[str]:
-    """The topics whose header stamps are not on the recorder's clock: the median of
-    (stamp - recording time) beyond ``tolerance``. A driver stamping with its device's own
-    time, GPS time or not at all (0) would misalign its topic against the others: every
-    error computed across them would compare different moments."""
-    out = []
-    for topic in sorted(offsets):
-        d = float(np.median(offsets[topic])) if offsets[topic] else 0.0
-        if abs(d) <= tolerance:
-            continue
-        zero = sum(1 for o in offsets[topic] if o <= -1e8)  # a stamp of 0 in a recording of ROS time
-        why = (f"{zero} of its first {len(offsets[topic])} messages are stamped 0 (unset)"
-               if zero > len(offsets[topic]) // 2 else "stamped on another clock than the recorder's?")
-        out.append(f"{topic}: its stamps are {d:+.6g} s from when they were recorded (median): {why} The "
-                   f"metrics align topics by their stamps, so those across it compare different moments")
-    return out
 
 
 def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None,

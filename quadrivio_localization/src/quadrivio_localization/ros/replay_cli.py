@@ -33,6 +33,7 @@ from quadrivio_description.paths import package_dir as _package_dir
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_recordings.clocks import clock_warnings
 from quadrivio_runtime.files import atomic_path, atomic_write
 
 from .. import sanity
@@ -154,6 +155,7 @@ def check_readings(bag, path: str, topics: Dict[str, str], have, imap, wheel_rad
     if not wanted:
         return []
     start = None
+    offsets: Dict[str, List[float]] = {topic: [] for topic in wanted}  # header stamp less recording time
     for topic, msg, t in read_messages(bag, path, list(wanted), error=ReplayError):
         role = wanted[topic]
         start = t.to_sec() if start is None else start
@@ -161,6 +163,8 @@ def check_readings(bag, path: str, topics: Dict[str, str], have, imap, wheel_rad
         try:
             if imap is not None:
                 msg = imap.convert(role, msg, t)
+            if len(offsets[topic]) < SANITY_SAMPLES:
+                offsets[topic].append(msg.header.stamp.to_sec() - t.to_sec())
             if role == "mag" and len(strengths) < SANITY_SAMPLES:
                 f = msg.magnetic_field
                 strengths.append(math.sqrt(f.x ** 2 + f.y ** 2 + f.z ** 2))
@@ -178,7 +182,8 @@ def check_readings(bag, path: str, topics: Dict[str, str], have, imap, wheel_rad
             continue  # the replay itself says which messages are unusable
         if len(strengths) >= SANITY_SAMPLES and len(forces) >= SANITY_SAMPLES and late:
             break
-    return sanity.check_all(strengths, forces, wheel, fixes, wheel_radius)
+    clocks = [("error", w) for w in clock_warnings(offsets)]  # the smoother fuses by stamps
+    return clocks + sanity.check_all(strengths, forces, wheel, fixes, wheel_radius)
 
 
 def run(args: argparse.Namespace) -> Dict[str, Any]:
