@@ -275,7 +275,7 @@ def test_topics_stamped_on_another_clock_are_named(tmp_path, capsys):
     run = read_run(str(bag), load_site(), load_vehicle())
     assert len(run.warnings) == 2
     gt_w, state_w = run.warnings
-    assert gt_w.startswith("/ground_truth/odom: its stamps are +18.1 s off the other topics'") and "another clock" in gt_w
+    assert gt_w.startswith("/ground_truth/odom: its stamps are +18 s off the other topics'") and "another clock" in gt_w
     assert state_w.startswith("/vehicle/state:") and "200 of its first 200 messages are stamped 0" in state_w
     assert analyze_cli.main([str(bag), "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
@@ -320,3 +320,46 @@ def test_replay_refuses_an_imu_stamped_on_its_own_clock(tmp_path, capsys):
     line = _one_clear_line(capsys.readouterr().err)
     assert "/imu/data: its stamps are +1000 s off the other topics'" in line and "stamp: receipt" in line
     assert not out.exists()
+
+
+def test_calibrate_mag_refuses_an_imu_on_another_clock(tmp_path, capsys):
+    """The IMU levels the magnetometer at its stamps: on its device's clock (1000 s ahead)
+    it would level readings of other moments."""
+    bag = tmp_path / "device_clock.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(400):
+            t = rospy.Time(1.0 + 0.01 * k)
+            imu = Imu()
+            imu.header.stamp = t + rospy.Duration(1000)
+            imu.linear_acceleration.z = 9.81
+            b.write("/imu/data", imu, t)
+            mag = MagneticField()
+            mag.header.stamp, mag.magnetic_field.x, mag.magnetic_field.z = t, 2.2e-5, -4.0e-5
+            b.write("/imu/mag", mag, t)
+    out = tmp_path / "mag.yaml"
+    assert calibrate_mag_cli.main([str(bag), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "/imu/data: its stamps are +1000 s off the other topics'" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_calibrate_refuses_a_state_on_another_clock(tmp_path, capsys):
+    """A dead time fitted across two clocks would be their offset: the PLC's states stamped on
+    its own clock (40 s behind) are refused, with the option that times them by the bag."""
+    from quadrivio_plc.msg import Setpoint
+
+    bag = tmp_path / "plc_clock.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        for k in range(600):
+            t = rospy.Time(100.0 + 0.02 * k)
+            sp = Setpoint()
+            sp.header.stamp, sp.speed = t, 1.0 if k > 100 else 0.0
+            b.write("/vehicle/setpoint/auto", sp, t)
+            st = VehicleState()
+            st.header.stamp, st.wheel_speed = t - rospy.Duration(40), 1.0 if k > 110 else 0.0
+            b.write("/vehicle/state", st, t)
+    out = tmp_path / "cal"
+    assert calibrate_cli.main([str(bag), "--out", str(out)]) == 2
+    line = _one_clear_line(capsys.readouterr().err)
+    assert "/vehicle/state: its stamps are -40 s off the other topics'" in line, line
+    assert "--stamp bag" in line and not out.exists()

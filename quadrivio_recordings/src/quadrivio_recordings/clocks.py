@@ -15,17 +15,27 @@ from typing import Dict, List
 CLOCK_TOLERANCE = 5.0  # [s] a topic's median stamp offset further than this from the others': another clock
 
 
+def reference(medians: List[float], tolerance: float) -> float:
+    """The clock most topics share: the offset (one of theirs, or 0, the recorder's own) that
+    the most medians lie within ``tolerance`` of; between as many, the recorder's or the one
+    nearest it (two topics that disagree: the one on the recorder's clock is right)."""
+    def support(c: float) -> int:
+        return sum(1 for m in medians if abs(m - c) <= tolerance)
+
+    return max([0.0] + list(medians), key=lambda c: (support(c), -abs(c)))
+
+
 def clock_warnings(offsets: Dict[str, List[float]], tolerance: float = CLOCK_TOLERANCE) -> List[str]:
     """The topics whose header stamps are on another clock than the others': each topic's
-    median of (stamp - recording time) against the median of those medians (the recorder's
-    clock when most topics are stamped on it), beyond ``tolerance``. A driver stamping with
+    median of (stamp - recording time) against the clock most topics share (:func:`reference`),
+    beyond ``tolerance``. A driver stamping with
     GPS time, its device's own clock or not at all (0) misaligns its topic against the others,
     and every error computed across them compares different moments. Topics that all share
     one other clock are consistent: nothing to say."""
     medians = {topic: statistics.median(v) for topic, v in offsets.items() if v}
     if len(medians) < 2:
         return []
-    ref = statistics.median(medians.values())
+    ref = reference(list(medians.values()), tolerance)
     out = []
     for topic in sorted(medians):
         d = medians[topic]

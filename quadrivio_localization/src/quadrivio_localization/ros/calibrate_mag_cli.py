@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 
 from quadrivio_config import ConfigError
+from quadrivio_recordings.clocks import clock_warnings
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
@@ -63,12 +64,15 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         speed = 0.0
         bins: dict = {}
         topics = [mag_topic, imu_topic] + ([state_topic] if use_state else [])
+        offsets: dict = {}  # header stamp less recording time, per topic (one clock for all?)
         try:
             for topic, msg, t_recv in read_messages(bag, path, topics, error=MagCalibrationError):
                 if imap is not None:
                     msg = imap.convert(role_of[topic], msg, t_recv)  # a ConfigError names a missing field
                 try:
                     t = msg.header.stamp.to_sec()
+                    if len(offsets.setdefault(topic, [])) < SANITY_SAMPLES:
+                        offsets[topic].append(t - t_recv.to_sec())
                     if topic == state_topic:
                         speed = float(msg.wheel_speed)
                         leveller.add_speed(t, speed)
@@ -102,7 +106,8 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         except rosbag.ROSBagException as exc:
             raise MagCalibrationError(f"{path}: corrupt bag ({exc})") from exc
     counts["moving_filter"] = use_state
-    counts["sanity"] = sanity.check_all(strengths, forces)
+    # the IMU levels the magnetometer at its stamps: one clock for both, or a levelling of other moments
+    counts["sanity"] = [("error", w) for w in clock_warnings(offsets)] + sanity.check_all(strengths, forces)
     m = np.array([np.mean(v, axis=0) for _, v in sorted(bins.items())]) if bins else np.zeros((0, 2))
     return m, counts
 

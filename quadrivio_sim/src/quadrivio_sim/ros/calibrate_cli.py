@@ -37,6 +37,7 @@ import yaml
 
 from quadrivio_config import ConfigError, from_mapping, load_yaml, param, to_mapping
 from quadrivio_recordings.ros import import_map
+from quadrivio_recordings.clocks import clock_warnings
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_recordings.ros.import_map import get_field
 from quadrivio_description.urdf import build_urdf
@@ -71,6 +72,15 @@ class BagSpec:
 
 def _field(msg, path: str, topic: str) -> float:
     return float(get_field(msg, path, topic, "the calibration", CalibrationError))
+
+
+CLOCK_SAMPLES = 500  # messages of each topic whose stamps are compared with their recording times
+
+
+def _offset(offsets: Dict[str, List[float]], topic: str, t: float, t_bag) -> None:
+    seen = offsets.setdefault(topic, [])
+    if len(seen) < CLOCK_SAMPLES:
+        seen.append(t - t_bag.to_sec())
 
 
 def _add(rec: Dict[str, List[float]], topic: str, t: float, values: Dict[str, float], unusable: Dict[str, int]) -> None:
@@ -110,6 +120,7 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
         out: Dict[str, Dict[str, List[float]]] = {"setpoint": {}, "measurement": {}}
         unusable: Dict[str, int] = {}
         bag_timed: Dict[str, int] = {}
+        offsets: Dict[str, List[float]] = {}  # header stamp less recording time, per topic
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
         try:
             for topic, msg, t_bag in read_messages(bag, path, list(by_topic), error=CalibrationError):
@@ -120,6 +131,7 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
                     t = imap.stamp(section, msg, t_bag)
                     values = {("speed" if k == "wheel_speed" else k): v for k, v in imap.scalars(section, msg).items()}
                     _add(rec, topic, t, values, unusable)
+                    _offset(offsets, topic, t, t_bag)
                     continue
                 header = getattr(msg, "header", None)
                 if spec.stamp == "header":
@@ -135,8 +147,13 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
                 values = {name: _field(msg, getattr(ts, name), topic) for name in ("speed", "handlebar", "brake")
                           if getattr(ts, name)}
                 _add(rec, topic, t, values, unusable)
+                _offset(offsets, topic, t, t_bag)
         except rosbag.ROSBagException as exc:
             raise CalibrationError(f"{path}: corrupt bag ({exc})") from exc
+    clocks = clock_warnings(offsets)  # a dead time fitted across two clocks would be their offset
+    if clocks:
+        raise CalibrationError(clocks[0] if imap is not None else
+                               clocks[0].replace("an import mapping's `stamp: receipt`", "--stamp bag"))
     for topic, n in unusable.items():
         print(f"[calibrate] {topic}: {n} message(s) with a value that is not a finite number skipped (e.g. the "
               "PLCClient's states while it has no PLC session)", file=sys.stderr)
