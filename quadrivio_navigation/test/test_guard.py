@@ -142,6 +142,19 @@ def test_good_scan_geometry_passes():
     check_scan(271, -2.356194, 2.356194, 4.712389 / 270, 0.1, 30.0)
 
 
+def test_a_clockwise_scan_gives_the_same_points():
+    """Some drivers sweep clockwise (angle_min > angle_max, a negative increment; a laser
+    mounted upside down often reads so): the same rays, listed the other way round."""
+    rng = np.random.default_rng(3)
+    ranges = rng.uniform(0.5, 25.0, 271)
+    ranges[::17] = np.nan
+    ccw = scan_points(ranges, -2.356194, 4.712388 / 270, 0.1, 30.0, (1.6, 0.0, 0.0))
+    check_scan(271, 2.356194, -2.356194, -4.712388 / 270, 0.1, 30.0)
+    cw = scan_points(ranges[::-1], 2.356194, -4.712388 / 270, 0.1, 30.0, (1.6, 0.0, 0.0))
+    assert cw.xy == pytest.approx(ccw.xy[::-1], abs=1e-9)
+    assert (cw.n_rays, cw.n_invalid) == (ccw.n_rays, ccw.n_invalid)
+
+
 # ------------------------------------------------------------------- guard
 def make_guard(vehicle, heights=None, **changes):
     return Guard(from_mapping(GuardParams, changes, "test"), vehicle, heights)
