@@ -231,18 +231,19 @@ def test_a_long_recording_shows_progress(tmp_path, capsys, monkeypatch):
             est.pose.pose.position.x = 0.5 * k
             est.pose.pose.orientation.w = 1.0
             b.write("/localization/odom", est, t)
-    seen = []
-    read_run(str(bag), load_site(), load_vehicle(), progress=lambda done, span: seen.append((done, span)))
-    assert [round(d) for d, _ in seen] == [60, 120, 180, 240, 300, 360, 420, 480, 540, 600]
-    assert all(span == pytest.approx(600.0) for _, span in seen)
+    from quadrivio_recordings import progress
 
-    monkeypatch.setattr(analyze_cli, "PROGRESS_S", 0.0)
+    seen = []
+    read_run(str(bag), load_site(), load_vehicle(), progress=seen.append)
+    assert [round(t) for t in seen] == list(range(106, 701, 6))  # each hundredth of the 600 s from 100 s
+
+    monkeypatch.setattr(progress, "PROGRESS_S", 0.0)
     assert analyze_cli.main([str(bag), "--out", str(tmp_path / "a")]) == 0
     err = capsys.readouterr().err
     percents = [int(p) for p in re.findall(r"reading field\.bag: +(\d+) % of 600 s recorded", err)]
-    assert percents == [10, 20, 30, 40, 50, 60, 70, 80, 90, 100]
+    assert percents == list(range(1, 101))
     assert "computing the metrics" in err and "drawing the plots" in err
-    monkeypatch.setattr(analyze_cli, "LONG_BAG_S", 601.0)  # shorter than that: silent
+    monkeypatch.setattr(progress, "LONG_BAG_S", 601.0)  # shorter than that: silent
     assert analyze_cli.main([str(bag), "--out", str(tmp_path / "b")]) == 0
     assert "[analyze] reading" not in capsys.readouterr().err
 

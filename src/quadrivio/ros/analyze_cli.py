@@ -11,12 +11,12 @@ import argparse
 import json
 import os
 import sys
-import time
 from typing import List, Optional
 
 from quadrivio_config import ConfigError
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
+from quadrivio_recordings.progress import BagProgress
 from quadrivio_runtime.files import atomic_write
 
 from .. import metrics
@@ -24,10 +24,6 @@ from ..plots import all_plots, format_metrics
 from ..stop_views import write_views
 from .bag import NEEDED_FOR, BagError, missing_topics, open_bag, read_run
 from .stop_scenes import read_stop_scenes
-
-
-LONG_BAG_S = 300.0  # [s] of recording from which analyze reports its progress (shorter ones take seconds)
-PROGRESS_S = 5.0  # [s] of wall time between two progress lines at the most
 
 
 def _run_info(bag: str) -> dict:
@@ -78,24 +74,12 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
             # nothing to compute: no metrics.json of nulls that reads like a result
             raise BagError(f"{bag} holds none of the topics the analysis reads: {'; '.join(missing)}. A recording "
                            f"made with other drivers' topics needs an import mapping (--map)")
-        t0 = time.perf_counter()
-        said = [t0]
-
-        def progress(done: float, span: float) -> None:  # a line at most every PROGRESS_S of wall time
-            now = time.perf_counter()
-            if not quiet and span >= LONG_BAG_S and now - said[0] >= PROGRESS_S:
-                said[0] = now
-                print(f"[analyze] reading {os.path.basename(bag)}: {100 * done / span:3.0f} % of {span:.0f} s "
-                      f"recorded, {now - t0:.0f} s", file=sys.stderr, flush=True)
-
-        run = read_run(bag, site, vehicle, imap, opened, progress=progress)
-        long_bag = not quiet and opened.get_message_count() and \
-            opened.get_end_time() - opened.get_start_time() >= LONG_BAG_S
+        progress = BagProgress.of_bag("analyze", os.path.basename(bag), opened, quiet=quiet)
+        run = read_run(bag, site, vehicle, imap, opened, progress=progress.update)
         info = _run_info(bag)
         guard = _guard_params(info)
         scenes, stops = read_stop_scenes(opened, bag, run, vehicle, [(sc.topic, sc.frame) for sc in guard.scanners])
-    if long_bag:
-        print(f"[analyze] read in {time.perf_counter() - t0:.0f} s; computing the metrics", file=sys.stderr, flush=True)
+    progress.phase("read; computing the metrics")
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
     if info.get("stack_cpu_s") is not None:  # experiment measured its processes' CPU while sim time ran
         m.update(metrics.cpu_metrics(info.get("stack_cpu_s"), info.get("stack_cpu_sim_s"), info.get("stack_cpu_wall_s"),
@@ -103,9 +87,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
     os.makedirs(out, exist_ok=True)
     atomic_write(os.path.join(out, "metrics.json"), json.dumps(m, indent=2) + "\n")
     title = f"{info.get('scenario') or os.path.basename(bag)}" + (f", seed {info['seed']}" if "seed" in info else "")
-    if long_bag:
-        print(f"[analyze] metrics written ({time.perf_counter() - t0:.0f} s); drawing the plots", file=sys.stderr,
-              flush=True)
+    progress.phase("metrics written; drawing the plots")
     made = all_plots(run, out, title)
     views = write_views(scenes, vehicle, guard.padding, out, title)
     if views and stops > len(views):

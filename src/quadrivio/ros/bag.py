@@ -101,10 +101,11 @@ CLOCK_SAMPLES = 500  # messages of each topic whose stamps are compared with the
 
 
 def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag=None,
-             progress: Optional[Callable[[float, float], None]] = None) -> RunData:
+             progress: Optional[Callable[[float], None]] = None) -> RunData:
     """``imap``: an import mapping whose gps and state sections replace /gps/fix and /vehicle/state;
-    ``bag``: the bag at ``path`` already open (left open); ``progress(done, span)``: called
-    with the recorded seconds read so far and the bag's span, after each tenth of it."""
+    ``bag``: the bag at ``path`` already open (left open); ``progress(t)``: called with the
+    recording time reached, after each hundredth of the bag's span
+    (:class:`quadrivio_recordings.progress.BagProgress`)."""
     import rosbag
 
     topics = topics_for(imap)
@@ -123,15 +124,15 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
     by_topic = {v: k for k, v in topics.items()}
     offsets: Dict[str, List[float]] = defaultdict(list)  # topic -> header stamp less recording time, the first ones
     with _opened(path, bag) as bag:
-        t_begin, span, step, next_report = 0.0, 0.0, math.inf, math.inf
-        if progress is not None:
-            t_begin = bag.get_start_time() if bag.get_message_count() else 0.0
-            span = bag.get_end_time() - t_begin if bag.get_message_count() else 0.0
-            step = next_report = span / 10.0 if span > 0.0 else math.inf
+        step = next_report = math.inf
+        if progress is not None and bag.get_message_count():
+            t_begin = bag.get_start_time()
+            step = (bag.get_end_time() - t_begin) / 100.0 or math.inf
+            next_report = t_begin + step
         try:
             for topic, m, t_recv in read_messages(bag, path, list(topics.values()), error=BagError):
-                if t_recv.to_sec() - t_begin >= next_report:
-                    progress(t_recv.to_sec() - t_begin, span)
+                if t_recv.to_sec() >= next_report:
+                    progress(t_recv.to_sec())
                     next_report += step
                 kind = by_topic[topic]
                 if imap is not None and kind in role_of and role_of[kind] in imap.sections:

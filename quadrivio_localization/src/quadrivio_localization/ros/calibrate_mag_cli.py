@@ -25,6 +25,7 @@ import yaml
 
 from quadrivio_config import ConfigError
 from quadrivio_recordings.clocks import clock_warnings
+from quadrivio_recordings.progress import BagProgress
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_description.site import load_site
 from quadrivio_description.vehicle import load_vehicle
@@ -65,8 +66,10 @@ def read_levelled(path: str, mag_topic: str, imu_topic: str, state_topic: str, v
         bins: dict = {}
         topics = [mag_topic, imu_topic] + ([state_topic] if use_state else [])
         offsets: dict = {}  # header stamp less recording time, per topic (one clock for all?)
+        progress = BagProgress.of_bag("calibrate_mag", os.path.basename(path), bag)
         try:
             for topic, msg, t_recv in read_messages(bag, path, topics, error=MagCalibrationError):
+                progress.update(t_recv.to_sec())
                 if imap is not None:
                     msg = imap.convert(role_of[topic], msg, t_recv)  # a ConfigError names a missing field
                 try:

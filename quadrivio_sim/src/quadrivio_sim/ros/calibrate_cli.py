@@ -38,6 +38,7 @@ import yaml
 from quadrivio_config import ConfigError, from_mapping, load_yaml, param, to_mapping
 from quadrivio_recordings.ros import import_map
 from quadrivio_recordings.clocks import clock_warnings
+from quadrivio_recordings.progress import BagProgress
 from quadrivio_recordings.ros.bag import open_bag, read_messages
 from quadrivio_recordings.ros.import_map import get_field
 from quadrivio_description.urdf import build_urdf
@@ -122,8 +123,10 @@ def read_bag(path: str, spec: BagSpec, imap=None) -> Dict[str, Dict[str, np.ndar
         bag_timed: Dict[str, int] = {}
         offsets: Dict[str, List[float]] = {}  # header stamp less recording time, per topic
         by_topic = {spec.setpoint.topic: ("setpoint", spec.setpoint), spec.measurement.topic: ("measurement", spec.measurement)}
+        progress = BagProgress.of_bag("calibrate", os.path.basename(path), bag)
         try:
             for topic, msg, t_bag in read_messages(bag, path, list(by_topic), error=CalibrationError):
+                progress.update(t_bag.to_sec())
                 role, ts = by_topic[topic]
                 rec = out[role]
                 if imap is not None:
