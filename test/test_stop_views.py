@@ -62,12 +62,12 @@ def _scan(t, frame, ranges, angle_min=-math.pi / 2, inc=math.pi / 2):
     return s
 
 
-def _status(t, action, scan_stamp=0.0, nearest=None):
+def _status(t, action, scan_stamp=0.0, nearest=None, speed=None):
     g = GuardStatus()
     g.header.stamp = rospy.Time.from_sec(t)
     g.action = action
     g.direction = 1
-    g.requested_speed = g.measured_speed = 1.5 if action != 2 else 1.4
+    g.requested_speed = g.measured_speed = (1.5 if action != 2 else 1.4) if speed is None else speed
     g.protective_distance, g.warning_distance, g.free_distance = 1.2, 3.5, 0.9
     if action == 2:
         g.field, g.reason, g.scanner = "protective", "obstacle 0.90 m along the path", "scan/front"
@@ -89,13 +89,13 @@ def _bag(path, stops=1, tf=True):
         for k in range(1, 10 * stops + 11):
             t = 0.1 * k
             b.write("/scan/front", _scan(t, "laser_front", [math.inf, 5.0 + 0.001 * k, 2.0]), rospy.Time.from_sec(t))
-        actions = []
+        actions = [(0.2, 4)]  # a fail-safe "stop" of the standing vehicle before the first scan: stops nothing
         for k in range(stops):
             actions += [(1.0 + k - 0.5, 0), (1.05 + k, 2), (1.1 + k, 3)]
         for t, a in actions:
             scan = round(t - 0.05, 1) if a == 2 else 0.0
-            b.write("/guard/status", _status(t, a, scan, nearest=(2.4, 0.0) if a == 2 else None),
-                    rospy.Time.from_sec(t))
+            b.write("/guard/status", _status(t, a, scan, nearest=(2.4, 0.0) if a == 2 else None,
+                                             speed=0.0 if a == 4 else None), rospy.Time.from_sec(t))
 
 
 def test_the_mounts_come_from_the_bags_tf_chain(tmp_path):

@@ -181,7 +181,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_sim.world import quat_to_rpy
     from quadrivio_terrain.terrain import known_heightfield
 
-    from .stop_views import MAX_VIEWS, StopScene
+    from .stop_views import MAX_VIEWS, StopScene, stopped_something
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
     v, site = scenario_vehicle(s, load_vehicle()), load_site()
@@ -367,7 +367,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
 
     def guard_status(t: float, d, requested: float, handlebar: float) -> None:
         st = guard.state
-        if d.action in (STOP, FAULT) and (not rec.guard or rec.guard[-1][1] != d.action):
+        if stopped_something(d.action, st[1] if st is not None else 0.0) and \
+                (not rec.guard or rec.guard[-1][1] != d.action):
             stops[0] += 1
             if len(stops[1]) < MAX_VIEWS:  # what it saw, for the stop's picture (stop_views)
                 stops[1].append(StopScene(

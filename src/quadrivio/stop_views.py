@@ -28,7 +28,14 @@ from quadrivio_runtime.files import atomic_path
 
 STOP, FAULT = 2, 4
 NAMES = {STOP: "protective stop", FAULT: "fail-safe stop"}
+STANDING = 0.1  # [m/s] below this the vehicle stands (the guard's stop_speed, obstacle_metrics' fault rule)
 MAX_VIEWS = 12  # pictures per run at most (the first stops): a run that stops 200 times needs a table, not 200 PNGs
+
+
+def stopped_something(action: int, measured_speed: float) -> bool:
+    """A protective stop, or a fail-safe one of a moving vehicle: as ``fault_stops`` counts
+    them (a FAULT while standing, before the first scan or pose, stops nothing)."""
+    return action == STOP or (action == FAULT and abs(measured_speed) >= STANDING)
 
 
 @dataclass

@@ -17,7 +17,7 @@ import numpy as np
 
 from quadrivio_recordings.ros.bag import read_messages
 
-from ..stop_views import FAULT, MAX_VIEWS, STOP, StopScene, add_world
+from ..stop_views import MAX_VIEWS, StopScene, add_world, stopped_something
 from .bag import BagError
 
 GUARD_TOPIC = "/guard/status"
@@ -107,7 +107,7 @@ def read_messages_between(bag, path: str, topic: str, end=None):
 def _stop_statuses(bag, path: str, limit: int) -> Tuple[List[object], int]:
     out, prev, count = [], None, 0
     for _, m, _ in read_messages(bag, path, [GUARD_TOPIC], error=BagError):
-        if m.action in (STOP, FAULT) and m.action != prev:
+        if stopped_something(m.action, m.measured_speed) and m.action != prev:
             count += 1
             if len(out) < limit:
                 out.append(m)
