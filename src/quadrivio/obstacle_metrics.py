@@ -4,7 +4,8 @@
   simulator's own contact points (``/ground_truth/contacts``), each with time, body and
   speed at impact (``collision_events``);
 * ``min_clearance_m``: the smallest distance, over the run, from the true (unpadded)
-  footprint to any actor, scenario obstacle or occupied map cell; a point ``p`` in the
+  footprint to any actor, scenario obstacle or map body (the cylinders and boxes the
+  simulator builds from the map's occupied cells: :func:`map_points`); a point ``p`` in the
   footprint's frame ``(u, w)`` is ``hypot(max(-rear - u, 0, u - front), max(-right - w, 0,
   w - left))`` from the rectangle;
 * ``protective_stops``: the guard's protective stops (transitions to STOP in the
@@ -83,15 +84,31 @@ def actors_at(actors, t: float) -> np.ndarray:
     return np.concatenate(pts) if pts else np.zeros((0, 2))
 
 
-def map_points(grid, lethal: int = 65) -> np.ndarray:
-    """Centres of the map's occupied cells (map frame)."""
+# The simulator's map bodies (quadrivio_sim/config/sim.yaml, map:): cells at or above OCCUPIED,
+# a cylinder around each blob no wider than TREE_SIZE, boxes covering the others
+OCCUPIED, TREE_SIZE = 65, 1.2
+_BODIES: Dict[int, tuple] = {}  # id(grid) -> (grid, points): one map, many runs and stops
+
+
+def map_points(grid, occupied: int = OCCUPIED, tree_size: float = TREE_SIZE) -> np.ndarray:
+    """Points every 5 cm on the outlines of the bodies the simulator builds from the map's
+    occupied cells (:func:`quadrivio_navigation.maps.obstacles_from_grid`), map frame. Not
+    the cells' centres: a tree's cylinder reaches the blob's farthest cell corner, 0.14-0.31 m
+    beyond the outermost centre toward the lane on the orchard's map, so clearances and
+    false stops judged by the centres were off by that much."""
     if grid is None:
         return np.zeros((0, 2))
-    rows, cols = np.nonzero(grid.data >= lethal)
-    if len(rows) == 0:
-        return np.zeros((0, 2))
-    x, y, _ = grid.to_map_frame((cols + 0.5) * grid.resolution, (rows + 0.5) * grid.resolution)
-    return np.column_stack([np.asarray(x, dtype=float), np.asarray(y, dtype=float)])
+    cached = _BODIES.get(id(grid))
+    if cached is not None and cached[0] is grid:
+        return cached[1]
+    from quadrivio_navigation.maps import obstacles_from_grid
+
+    blocks = obstacles_from_grid(grid, occupied, tree_size)
+    pts = [_outline_points(b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y) for b in blocks]
+    out = np.concatenate(pts) if pts else np.zeros((0, 2))
+    _BODIES.clear()  # one map at a time: a campaign's worker keeps the last
+    _BODIES[id(grid)] = (grid, out)
+    return out
 
 
 def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> np.ndarray:
@@ -107,11 +124,7 @@ def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> n
 
 def min_clearance(gt, fp, actors, grid, stride: int = 1) -> Optional[float]:
     """The smallest footprint-to-body distance over the ground truth [m] (None: no bodies)."""
-    fixed = map_points(grid)
-    if len(fixed):  # map cells: their centres, less half a cell's diagonal
-        fixed_margin = 0.5 * math.sqrt(2.0) * grid.resolution
-    else:
-        fixed_margin = 0.0
+    fixed = map_points(grid)  # on the bodies' outlines
     if not actors and len(fixed) == 0 or len(gt) == 0:
         return None
     reach = fp.circumscribed_radius + 3.0
@@ -126,8 +139,7 @@ def min_clearance(gt, fp, actors, grid, stride: int = 1) -> Optional[float]:
         if tree is not None:
             near = tree.query_ball_point((x, y), reach)
             if near:
-                d = rectangle_distance(fp, x, y, yaw, fixed[near]).min() - fixed_margin
-                best = min(best, max(d, 0.0))
+                best = min(best, float(rectangle_distance(fp, x, y, yaw, fixed[near]).min()))
         if actors:
             pts = actors_at(actors, t)
             if len(pts):
