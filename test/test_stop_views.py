@@ -142,3 +142,19 @@ def test_analyze_draws_each_stop_up_to_a_limit(tmp_path, capsys):
     views = sorted(p.name for p in (tmp_path / "a" / "stops").iterdir())
     assert len(views) == MAX_VIEWS and views[0] == "stop_01_1.05s.png" and views[-1] == f"stop_{MAX_VIEWS}_12.05s.png"
     assert f"(the first {MAX_VIEWS} of {MAX_VIEWS + 2} stops)" in capsys.readouterr().out
+
+
+def test_a_nearest_point_that_is_no_return_is_named():
+    """The guard's nearest point off every return came from its tracker (the margin kept from
+    a thing that moved, or where a moving one may be): the picture says so."""
+    from quadrivio.stop_views import off_returns
+
+    returns = {"scan/front": np.array([[2.3, 0.86], [2.4, 0.85], [3.0, -1.0]])}
+    kept = StopScene(17.42, 2, "protective", "", "scan/front", 1, 1.2, 0.27, -0.07, -0.07, 0.39, 1.99, 0.37,
+                     (2.3, 0.66), returns)
+    d, closest = off_returns(kept)
+    assert d == pytest.approx(0.2) and closest == (2.3, 0.86)
+    seen = StopScene(8.0, 2, "protective", "", "scan/front", 1, 3.0, 3.0, 0.0, 0.0, 2.5, 6.5, 1.9, (3.0, -1.0),
+                     returns)
+    assert off_returns(seen) is None
+    assert off_returns(StopScene(1.0, 4, "", "silent", "", 1, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf, None)) is None

@@ -72,6 +72,25 @@ def to_base_link(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarr
     return np.column_stack([c * dx + s * dy, -s * dx + c * dy])
 
 
+OFF_RETURNS = 0.05  # [m] a nearest point further than this from every return is not one
+
+
+def off_returns(scene: StopScene) -> Optional[Tuple[float, Tuple[float, float]]]:
+    """(distance, closest return) when the guard's nearest point is none of the scans'
+    returns (further than OFF_RETURNS from all): the guard took it from its tracker, so the
+    stop was for where a tracked thing may be or for the margin kept from one that moved;
+    None otherwise, or without returns to compare."""
+    if scene.nearest is None:
+        return None
+    pts = [p for p in scene.scans.values() if len(p)]
+    if not pts:
+        return None
+    allp = np.concatenate(pts)
+    d = np.hypot(allp[:, 0] - scene.nearest[0], allp[:, 1] - scene.nearest[1])
+    k = int(np.argmin(d))
+    return (float(d[k]), (float(allp[k, 0]), float(allp[k, 1]))) if d[k] > OFF_RETURNS else None
+
+
 def add_world(scene: StopScene, run, radius: float = 20.0) -> StopScene:
     """The run's world about the vehicle at the stop, in its frame: the true outlines of the
     actors and obstacles (only with a ground truth) and the map's occupied cells within
@@ -169,6 +188,9 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
                 label=f"{topic} ({len(pts)} returns, {1e3 * age:.0f} ms before)")
     if scene.nearest is not None:
         ax.plot(*scene.nearest, "X", color="k", ms=11, mec="w", label="nearest (the guard's)")
+    off = off_returns(scene)
+    if off is not None:  # not a return: a tracked thing's margin or its predicted place
+        ax.plot([scene.nearest[0], off[1][0]], [scene.nearest[1], off[1][1]], "k:", lw=1.0)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
@@ -179,7 +201,10 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
     head = f"{title}: " if title else ""
     ax.set_title(f"{head}{NAMES.get(scene.action, scene.action)} at t = {scene.t:.2f} s"
                  + (f" ({scene.field_kind} field, {scene.scanner})" if scene.field_kind else ""), fontsize=10)
-    text = (f"{scene.reason}\nspeed asked {scene.requested_speed:+.2f}, measured {scene.measured_speed:+.2f} m/s; "
+    note = "" if off is None else (
+        f"\nthe nearest point is {off[0]:.2f} m from every return drawn: a point the guard added for a tracked "
+        f"thing (where a moving one may be, or track_clearance around one that has moved)")
+    text = (f"{scene.reason}{note}\nspeed asked {scene.requested_speed:+.2f}, measured {scene.measured_speed:+.2f} m/s; "
             f"handlebar asked {scene.requested_handlebar:+.3f}, measured {scene.measured_handlebar:+.3f} rad\n"
             f"free distance {free}; fields {scene.protective:.2f} / {scene.warning:.2f} m "
             f"(rebuilt from the guard's distances and handlebars); laser mounts: {scene.mounts}")
