@@ -158,3 +158,38 @@ def test_a_nearest_point_that_is_no_return_is_named():
                      returns)
     assert off_returns(seen) is None
     assert off_returns(StopScene(1.0, 4, "", "silent", "", 1, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf, None)) is None
+
+
+def test_a_bag_of_an_older_guard_status_is_drawn_too(tmp_path):
+    """Bags recorded with GuardStatus's first definition (7f00fdf, 2026-11-26: no handlebars):
+    read through their own message definition, the missing fields are unknown, not a crash."""
+    import genpy.dynamic
+
+    old_def = ("Header header\nuint8 action\nstring field\nstring reason\nfloat64 speed_limit\n"
+               "float64 requested_speed\nfloat64 commanded_speed\nfloat64 measured_speed\nfloat64 free_distance\n"
+               "float64 protective_distance\nfloat64 warning_distance\nbool has_nearest\n"
+               "geometry_msgs/Point nearest\nstring scanner\ntime scan_stamp\nint8 direction\nfloat64 slope\n"
+               "uint32 protective_stops\n")
+    full = old_def + "\n" + "=" * 80 + "\nMSG: std_msgs/Header\nuint32 seq\ntime stamp\nstring frame_id\n" + \
+        "=" * 80 + "\nMSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n"
+    Old = genpy.dynamic.generate_dynamic("quadrivio_navigation/GuardStatus", full)["quadrivio_navigation/GuardStatus"]
+    path = tmp_path / "old.bag"
+    with rosbag.Bag(str(path), "w") as b:
+        b.write("/tf_static", TFMessage(transforms=[_tf("base_link", "laser_front", (1.6, 0.0, 0.25),
+                                                        (0.0, 0.0, 0.0, 1.0))]), rospy.Time(0.001))
+        for k in range(1, 15):
+            t = 0.1 * k
+            b.write("/scan/front", _scan(t, "laser_front", [math.inf, 2.0, math.inf]), rospy.Time.from_sec(t))
+        for t, a in ((0.5, 0), (1.05, 2), (1.2, 3)):
+            g = Old()
+            g.header.stamp, g.action, g.measured_speed, g.requested_speed = rospy.Time.from_sec(t), a, 1.0, 1.0
+            g.direction = 1
+            g.protective_distance, g.warning_distance, g.free_distance = 1.0, 3.0, 0.5
+            b.write("/guard/status", g, rospy.Time.from_sec(t))
+    run = RunData(Series.empty(), Series.empty(), Series.empty(), Series.empty(), None, Series.empty())
+    with open_bag(str(path), BagError) as b:
+        scenes, count = read_stop_scenes(b, str(path), run, V, SCANNERS)
+    assert count == 1 and scenes[0].scanner == "" and math.isnan(scenes[0].requested_handlebar)
+    assert scenes[0].scans["scan/front"] == pytest.approx(np.array([[3.6, 0.0]]))  # the newest scan up to the stop
+    assert analyze_cli.main([str(path), "--out", str(tmp_path / "a")]) == 0
+    assert (tmp_path / "a" / "stops" / "stop_01_1.05s.png").exists()

@@ -119,7 +119,9 @@ def field_poses(scene: StopScene, vehicle, length: float, speed: float, ds: floa
 
     h0 = scene.measured_handlebar if math.isfinite(scene.measured_handlebar) else 0.0
     h1 = scene.requested_handlebar if math.isfinite(scene.requested_handlebar) else h0
-    return sweep(scene.direction or 1, h0, h1, vehicle.steering.max_rate, abs(speed), max(length, 0.0), ds,
+    speed = abs(speed) if math.isfinite(speed) else 0.0  # unknown (an older status): the sweep at creep
+    length = length if math.isfinite(length) else 0.0
+    return sweep(scene.direction or 1, h0, h1, vehicle.steering.max_rate, speed, max(length, 0.0), ds,
                  vehicle.wheelbase, vehicle.steering.ratio)
 
 

@@ -107,7 +107,7 @@ def read_messages_between(bag, path: str, topic: str, end=None):
 def _stop_statuses(bag, path: str, limit: int) -> Tuple[List[object], int]:
     out, prev, count = [], None, 0
     for _, m, _ in read_messages(bag, path, [GUARD_TOPIC], error=BagError):
-        if stopped_something(m.action, m.measured_speed) and m.action != prev:
+        if stopped_something(m.action, getattr(m, "measured_speed", math.inf)) and m.action != prev:
             count += 1
             if len(out) < limit:
                 out.append(m)
@@ -142,8 +142,9 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
     scenes = []
     for st in statuses:
         t = st.header.stamp.to_sec()
-        judged = "/" + st.scanner.lstrip("/") if st.scanner else ""
-        want = st.scan_stamp.to_sec()
+        scanner = getattr(st, "scanner", "")
+        judged = "/" + scanner.lstrip("/") if scanner else ""
+        want = st.scan_stamp.to_sec() if hasattr(st, "scan_stamp") else 0.0
         best: Dict[str, object] = {}
         if present:
             start, end = rospy.Time.from_sec(max(0.0, t - WINDOW)), rospy.Time.from_sec(t + 0.05)
@@ -165,9 +166,15 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
                               (float(p[0]), float(p[1]), 0.0), rotation=R)
             scans[topic.lstrip("/")] = pts.xy
             ages[topic.lstrip("/")] = t - m.header.stamp.to_sec()
-        nearest = (st.nearest.x, st.nearest.y) if st.has_nearest else None
-        scenes.append(add_world(StopScene(t, int(st.action), st.field, st.reason, st.scanner, int(st.direction),
-                                          st.requested_speed, st.measured_speed, st.requested_handlebar,
-                                          st.measured_handlebar, st.protective_distance, st.warning_distance,
-                                          st.free_distance, nearest, scans, ages, source), run, MAP_RADIUS))
+        nearest = (st.nearest.x, st.nearest.y) if getattr(st, "has_nearest", False) else None
+
+        def f(name: str, default: float = math.nan) -> float:  # a field an older GuardStatus may lack
+            return float(getattr(st, name, default))
+
+        scenes.append(add_world(StopScene(t, int(st.action), getattr(st, "field", ""), getattr(st, "reason", ""),
+                                          scanner, int(getattr(st, "direction", 0)), f("requested_speed"),
+                                          f("measured_speed"), f("requested_handlebar"), f("measured_handlebar"),
+                                          f("protective_distance", 0.0), f("warning_distance", 0.0),
+                                          f("free_distance", math.inf), nearest, scans, ages, source), run,
+                                MAP_RADIUS))
     return scenes, count
