@@ -294,28 +294,35 @@ def test_topics_stamped_on_another_clock_are_named(tmp_path, capsys):
     assert read_run(str(same), load_site(), load_vehicle()).warnings == []
 
 
-def test_replay_refuses_an_imu_stamped_on_its_own_clock(tmp_path, capsys):
-    """The smoother fuses by stamps: an IMU on its device's clock (1000 s ahead of the rest)
-    would be fused with fixes and wheel speeds of other moments. replay refuses, naming the
-    topic and the mapping key that reads it by its recording time; nothing is written."""
-    bag = tmp_path / "device_clock.bag"
-    with rosbag.Bag(str(bag), "w") as b:
-        for k in range(600):
+def _device_clock_imu(path, n, state_and_fixes=False):
+    """``n`` samples at 100 Hz of an IMU stamped on its device's clock (1000 s ahead) and a
+    magnetometer on the recorder's, with vehicle states and 5 Hz fixes if asked."""
+    with rosbag.Bag(str(path), "w") as b:
+        for k in range(n):
             t = rospy.Time(1.0 + 0.01 * k)
             imu = Imu()
             imu.header.stamp = t + rospy.Duration(1000)
             imu.linear_acceleration.z = 9.81
             b.write("/imu/data", imu, t)
-            st = VehicleState()
-            st.header.stamp = t
-            b.write("/vehicle/state", st, t)
             mag = MagneticField()
             mag.header.stamp, mag.magnetic_field.x, mag.magnetic_field.z = t, 2.2e-5, -4.0e-5
             b.write("/imu/mag", mag, t)
-            if k % 20 == 0:
-                fix = NavSatFix()
-                fix.header.stamp, fix.latitude, fix.longitude = t, 45.478, 9.2276
-                b.write("/gps/fix", fix, t)
+            if state_and_fixes:
+                st = VehicleState()
+                st.header.stamp = t
+                b.write("/vehicle/state", st, t)
+                if k % 20 == 0:
+                    fix = NavSatFix()
+                    fix.header.stamp, fix.latitude, fix.longitude = t, 45.478, 9.2276
+                    b.write("/gps/fix", fix, t)
+    return path
+
+
+def test_replay_refuses_an_imu_stamped_on_its_own_clock(tmp_path, capsys):
+    """The smoother fuses by stamps: an IMU on its device's clock (1000 s ahead of the rest)
+    would be fused with fixes and wheel speeds of other moments. replay refuses, naming the
+    topic and the mapping key that reads it by its recording time; nothing is written."""
+    bag = _device_clock_imu(tmp_path / "device_clock.bag", 600, state_and_fixes=True)
     out = tmp_path / "replayed.bag"
     assert replay_cli.main([str(bag), "--out", str(out), "--quiet"]) == 2
     line = _one_clear_line(capsys.readouterr().err)
@@ -326,17 +333,7 @@ def test_replay_refuses_an_imu_stamped_on_its_own_clock(tmp_path, capsys):
 def test_calibrate_mag_refuses_an_imu_on_another_clock(tmp_path, capsys):
     """The IMU levels the magnetometer at its stamps: on its device's clock (1000 s ahead)
     it would level readings of other moments."""
-    bag = tmp_path / "device_clock.bag"
-    with rosbag.Bag(str(bag), "w") as b:
-        for k in range(400):
-            t = rospy.Time(1.0 + 0.01 * k)
-            imu = Imu()
-            imu.header.stamp = t + rospy.Duration(1000)
-            imu.linear_acceleration.z = 9.81
-            b.write("/imu/data", imu, t)
-            mag = MagneticField()
-            mag.header.stamp, mag.magnetic_field.x, mag.magnetic_field.z = t, 2.2e-5, -4.0e-5
-            b.write("/imu/mag", mag, t)
+    bag = _device_clock_imu(tmp_path / "device_clock.bag", 400)
     out = tmp_path / "mag.yaml"
     assert calibrate_mag_cli.main([str(bag), "--out", str(out)]) == 2
     err = capsys.readouterr().err

@@ -367,18 +367,16 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
 
     def guard_status(t: float, d, requested: float, handlebar: float) -> None:
         st = guard.state
-        if stopped_something(d.action, st[1] if st is not None else 0.0) and \
-                (not rec.guard or rec.guard[-1][1] != d.action):
+        v_m, h_m = (st[1], st[2]) if st is not None else (math.nan, math.nan)
+        if stopped_something(d.action, v_m) and (not rec.guard or rec.guard[-1][1] != d.action):
             stops[0] += 1
             if len(stops[1]) < MAX_VIEWS:  # what it saw, for the stop's picture (stop_views)
                 stops[1].append(StopScene(
-                    t, d.action, d.field, d.reason, d.scanner, d.direction, requested,
-                    st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan,
+                    t, d.action, d.field, d.reason, d.scanner, d.direction, requested, v_m, handlebar, h_m,
                     d.protective, d.warning, d.free, d.nearest, {k: xy for k, (_, xy) in seen_scans.items()},
                     {k: t - stamp for k, (stamp, _) in seen_scans.items()}, "the vehicle description"))
         rec.guard.append((t, d.action, d.limit, d.free, d.protective, d.scan_stamp if math.isfinite(d.scan_stamp)
-                          else 0.0, d.direction, requested, 1.0 if d.field == "zone" else 0.0,
-                          st[1] if st is not None else math.nan, handlebar, st[2] if st is not None else math.nan))
+                          else 0.0, d.direction, requested, 1.0 if d.field == "zone" else 0.0, v_m, handlebar, h_m))
         if d.action in (STOP, HOLD, FAULT) or d.limit < fp.pure_pursuit.min_speed:
             guard_held[0] = t + 0.3
         held = d.action in (STOP, HOLD) or (d.limit < 0.05 and abs(requested) > 0.1)

@@ -15,6 +15,7 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
+from quadrivio_description.frames import matrix_from_quaternion, rpy_matrix
 from quadrivio_recordings.ros.bag import read_messages
 
 from ..stop_views import MAX_VIEWS, StopScene, add_world, stopped_something
@@ -24,23 +25,6 @@ GUARD_TOPIC = "/guard/status"
 WINDOW = 0.5  # [s] of scans read before a stop
 TF_SCAN = 10.0  # [s] of /tf searched for the lasers' mounts when /tf_static lacks them
 MAP_RADIUS = 20.0  # [m] map cells drawn about the pose
-
-
-def _rotation(q) -> np.ndarray:
-    x, y, z, w = q
-    n = math.sqrt(x * x + y * y + z * z + w * w) or 1.0
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = (math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw),
-                              math.sin(yaw))
-    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-                     [-sp, cp * sr, cp * cr]])
 
 
 def chain_to(frame: str, edges: Dict[str, Tuple[str, np.ndarray, np.ndarray]], base: str
@@ -77,8 +61,8 @@ def laser_mounts(bag, path: str, frames: Sequence[str], vehicle, base: str = "ba
                 child = tr.child_frame_id.lstrip("/")
                 if child not in edges:
                     t, q = tr.transform.translation, tr.transform.rotation
-                    edges[child] = (tr.header.frame_id.lstrip("/"), _rotation((q.x, q.y, q.z, q.w)),
-                                    np.array([t.x, t.y, t.z]))
+                    R = np.array(matrix_from_quaternion(q.x, q.y, q.z, q.w))
+                    edges[child] = (tr.header.frame_id.lstrip("/"), R, np.array([t.x, t.y, t.z]))
             if all(chain_to(f, edges, base) is not None for f in frames):
                 break
     mounts, described = {}, []
@@ -86,7 +70,7 @@ def laser_mounts(bag, path: str, frames: Sequence[str], vehicle, base: str = "ba
         found = chain_to(f, edges, base)
         if found is None and f in vehicle.sensors:
             s = vehicle.sensors[f]
-            found = (_rpy(*s.rpy), np.array(s.xyz, float))
+            found = (np.array(rpy_matrix(s.rpy)), np.array(s.xyz, float))
             described.append(f)
         if found is not None:
             mounts[f] = found
