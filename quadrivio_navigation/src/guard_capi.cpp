@@ -72,10 +72,11 @@ void qv_guard_on_pose(void* handle, double stamp, double x, double y, double yaw
 }
 
 // Scanner ``index`` (the configuration's order): ``n`` points (x, y interleaved, base_link) of
-// a scan of ``n_rays`` rays, ``n_invalid`` of them invalid; or, with ``error`` not null, a
-// scan that came but cannot be used, and why
+// a scan of ``n_rays`` rays, ``n_invalid`` of them invalid, and, with ``geometry`` not null,
+// its rays (fields.Rays: ox, oy, m00, m01, m10, m11, angle_min, increment; ``free``: n_rays
+// values); or, with ``error`` not null, a scan that came but cannot be used, and why
 void qv_guard_on_scan(void* handle, size_t index, double stamp, const double* xy, size_t n, int n_rays, int n_invalid,
-                      const char* error)
+                      const double* geometry, const double* free, const char* error)
 {
   g::Guard& guard = *static_cast<Handle*>(handle)->guard;
   if (error != nullptr)
@@ -89,6 +90,20 @@ void qv_guard_on_scan(void* handle, size_t index, double stamp, const double* xy
   sp.xy.resize(n);
   for (size_t i = 0; i < n; ++i)
     sp.xy[i] = g::Point{ xy[2 * i], xy[2 * i + 1] };
+  if (geometry != nullptr && free != nullptr)
+  {
+    g::Rays& r = sp.rays;
+    sp.has_rays = true;
+    r.ox = geometry[0];
+    r.oy = geometry[1];
+    r.m00 = geometry[2];
+    r.m01 = geometry[3];
+    r.m10 = geometry[4];
+    r.m11 = geometry[5];
+    r.angle_min = geometry[6];
+    r.inc = geometry[7];
+    r.free.assign(free, free + std::max(n_rays, 0));
+  }
   guard.onScan(index, stamp, &sp);
 }
 

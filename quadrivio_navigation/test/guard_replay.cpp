@@ -3,14 +3,18 @@
 // (quadrivio_navigation/ros/guard_config.py's format, up to "end"), then one event per line:
 //   state T V H | pitch T P | pose T X Y YAW SD | scanerr I T REASON...
 //   scan I T N_RAYS N_INVALID N X1 Y1 ... XN YN   (points in base_link)
+//   ranges I T ANGLE_MIN INC RMIN RMAX MX MY MYAW MAX_RANGE N R1..RN   (a scan through scanPoints, rays
+//                                          included; ranges as float32, inf and nan spelled so)
 //   decide NOW SPEED HANDLEBAR BRAKE   -> "decision ACTION LIMIT FREE PROT PROT_REQ WARN HAS_NEAREST NX NY
 //                                          SCAN_STAMP DIRECTION SLOPE SP_SPEED SP_HANDLEBAR SP_BRAKE STOPS FAULTS
 //                                          ZONE_STOPS|FIELD|SCANNER|REASON"
 //   attitude_speed T V | attitude_imu T FX FY FZ WX WY WZ -> "attitude ROLL PITCH"
+//   seen OX OY C S M00 M01 M10 M11 ANGLE_MIN INC MARGIN ANGLE N F1..FN K X1 Y1..XK YK -> "seen COUNT"
 //   ground X Y Z ROLL PITCH YAW ANGLE_MIN INC RMIN RMAX MAX_RANGE TOL PER_M SLACK CAP N R1..RN -> "ground 0 1 ..."
 #include <quadrivio_navigation/guard_core.h>
 
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <iostream>
 #include <sstream>
@@ -64,6 +68,37 @@ int main()
       for (auto& p : sp.xy)
         in >> p.x >> p.y;
       guard.onScan(i, t, &sp);
+    }
+    else if (kind == "ranges")
+    {
+      size_t i, n;
+      double t, amin, inc, rmin, rmax, mx, my, myaw, max_range;
+      in >> i >> t >> amin >> inc >> rmin >> rmax >> mx >> my >> myaw >> max_range >> n;
+      std::vector<float> ranges(n);
+      for (auto& r : ranges)
+      {
+        std::string word;
+        in >> word;
+        r = std::strtof(word.c_str(), nullptr);
+      }
+      const g::ScanPoints sp = g::scanPoints(ranges, amin, inc, rmin, rmax, mx, my, myaw, max_range, nullptr);
+      guard.onScan(i, t, &sp);
+    }
+    else if (kind == "seen")
+    {
+      g::SeenScan sc{};
+      g::TrackParams tp;
+      size_t n, k;
+      in >> sc.ox >> sc.oy >> sc.c >> sc.s >> sc.rays.m00 >> sc.rays.m01 >> sc.rays.m10 >> sc.rays.m11 >>
+          sc.rays.angle_min >> sc.rays.inc >> tp.seen_margin >> tp.seen_angle >> n;
+      sc.rays.free.resize(n);
+      for (auto& f : sc.rays.free)
+        in >> f;
+      in >> k;
+      std::vector<g::Point> pts(k);
+      for (auto& q : pts)
+        in >> q.x >> q.y;
+      std::printf("seen %d\n", g::seenThrough(sc, pts, tp));
     }
     else if (kind == "scanerr")
     {

@@ -16,7 +16,7 @@ import pytest
 from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_description.attitude import Attitude, imu_lever
-from quadrivio_navigation.fields import ScanPoints
+from quadrivio_navigation.fields import ScanPoints, scan_points
 from quadrivio_navigation.guard import Guard, GuardParams
 from quadrivio_navigation.local_layer import base_on_wheels, dem_ground, wheel_centres
 from quadrivio_navigation.ros.guard_config import emit
@@ -89,6 +89,10 @@ def _script(events):
             _, i, t, n_rays, invalid, pts = e
             xy = " ".join(f"{x!r} {y!r}" for x, y in pts)
             out.append(f"scan {i} {t!r} {n_rays} {invalid} {len(pts)} {xy}")
+        elif e[0] == "ranges":  # a LaserScan's float32 ranges through scanPoints, rays included
+            _, i, t, geometry, rr = e
+            words = " ".join(repr(float(r)) for r in rr)
+            out.append(f"ranges {i} {t!r} " + " ".join(repr(float(g)) for g in geometry) + f" {len(rr)} {words}")
         elif e[0] == "scanerr":
             out.append(f"scanerr {e[1]} {e[2]!r} {e[3]}")
         else:
@@ -116,6 +120,9 @@ def _drive(g, events, p, states=None):
         elif e[0] == "scan":
             _, i, t, n_rays, invalid, pts = e
             g.on_scan(p.scanners[i].topic, t, ScanPoints(pts, n_rays, invalid, 0))
+        elif e[0] == "ranges":
+            _, i, t, (amin, inc, rmin, rmax, mx, my, myaw, max_range), rr = e
+            g.on_scan(p.scanners[i].topic, t, scan_points(rr, amin, inc, rmin, rmax, (mx, my, myaw), max_range))
         elif e[0] == "scanerr":
             g.on_scan(p.scanners[e[1]].topic, e[2], None, e[3])
         else:
@@ -258,12 +265,16 @@ def test_base_on_wheels_matches_the_python_model():
 @pytest.mark.parametrize("seed", range(3))
 def test_moving_obstacles_match_the_python_core(seed):
     """A drive past trees with people crossing ahead: the tracks (tracks.py, the C++
-    MotionTracker) and the decisions on where they will be are the same."""
-    from test_tracks import raycast
+    MotionTracker), what the scans saw through, and the decisions on where they will be are
+    the same, in the replay and through NativeGuard. Thick trunks beside the lane make
+    centroids travel that the rays' test must refuse."""
+    from test_tracks import ranges
+    from quadrivio_navigation import tracks
     vehicle = load_vehicle()
     p = GuardParams()
     rng = np.random.default_rng(seed)
     trees = [(x, y, 0.15) for x in np.arange(4.0, 40.0, 1.5) for y in (-2.5, 2.5)]
+    trees += [(x, y, 0.57) for x in np.arange(5.0, 40.0, 6.0) for y in (-1.6, 1.6)]
     people = [(float(rng.uniform(9, 20)), float(rng.choice([-1, 1])) * float(rng.uniform(0.8, 1.8)),
                float(rng.uniform(0.25, 0.35)), float(rng.uniform(0.0, 3.0))) for _ in range(3)]  # x, speed, r, start
     people[0] = (float(rng.uniform(14, 16)), 1.4, 0.3, float(rng.uniform(1.5, 2.0)))  # one steps out ~8 m ahead
@@ -278,17 +289,67 @@ def test_moving_obstacles_match_the_python_core(seed):
             for px, u, r, t0 in people:
                 y0 = -2.8 if u > 0 else 2.8  # from behind a tree row
                 circles.append((px, y0 + u * max(0.0, t - 1.0 - t0), r))
-            pts = raycast((x, y, yaw), circles, mount=(1.7, 0.0), rng=rng, noise=0.01)
-            events.append(("scan", 0, t - 0.03, 541, 0, pts))
+            fov = math.radians(270.0)
+            rr = ranges((x, y, yaw), circles, mount=(1.7, 0.0), fov=fov, rng=rng, noise=0.01)
+            events.append(("ranges", 0, t - 0.03, (-fov / 2, fov / 540, 0.05, 30.0, 1.7, 0.0, 0.0, 20.0), rr))
             events.append(("scan", 1, t - 0.03, 541, 0, np.zeros((0, 2))))
         events.append(("decide", t, 3.0, h, 0.0))
         w = v * math.tan(vehicle.steering.ratio * h) / vehicle.wheelbase
         x, y, yaw = x + v * math.cos(yaw) * 0.02, y + v * math.sin(yaw) * 0.02, yaw + w * 0.02
     cpp = _run(_config(p, vehicle), _script(events))
-    py = _python(events, p, vehicle)
+    refused = []
+    moved_through = tracks.MotionTracker._moved_through
+
+    def counted(self, k):
+        out = moved_through(self, k)
+        refused.append(not out)
+        return out
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(tracks.MotionTracker, "_moved_through", counted)
+        py = _python(events, p, vehicle)
     _compare(py, cpp)
+    native, _ = _wrapped(events, p, vehicle)
+    assert [(d.action, d.reason, d.limit, d.nearest) for d, *_ in native] == \
+        [(d.action, d.reason, d.limit, d.nearest) for d, *_ in py]
     moving = [d.reason for d, *_ in py if "moving obstacle" in d.reason]
     assert moving, "no decision acted on a moving obstacle: the comparison tests little"
+    assert any(refused) and not all(refused), "the rays' test never decided: the comparison tests little"
+
+
+def test_what_a_scan_saw_through_matches_the_python_core():
+    """tracks.seen_through and guard_core.h's seenThrough on random lasers (any yaw, upside
+    down, tilted, angles turning either way, all around or not), unknown rays, and points near
+    the returns, beyond the field of view and across the angles' wrap: the same counts."""
+    from quadrivio_navigation.fields import Rays
+    from quadrivio_navigation.tracks import SeenScan, TrackParams, seen_through
+    rng = np.random.default_rng(17)
+    lines, want, nonzero = [], [], 0
+    for case in range(400):
+        n = int(rng.integers(8, 400))
+        inc = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.2, 1.0) * 2.0 * math.pi / n)
+        if rng.random() < 0.5:  # a field of view short of all around
+            inc *= float(rng.uniform(0.3, 0.95))
+        amin = float(rng.uniform(-math.pi, math.pi))
+        kind = rng.integers(3)
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        c, s = math.cos(yaw), math.sin(yaw)
+        m = [(c, -s, s, c), (c, s, s, -c), (c * 0.8, -s, s * 0.8, c)][kind]  # yawed, upside down, tilted
+        free = np.maximum(float(rng.uniform(3.0, 12.0)) + rng.normal(0.0, 0.3, n), 0.0)
+        few = rng.random(n) < 0.05
+        free[few] = rng.choice([0.0, 1.0, 2.5], int(few.sum()))  # unknown rays and near returns
+        vyaw = float(rng.uniform(-math.pi, math.pi))
+        sc = SeenScan(0.0, float(rng.normal(0, 5)), float(rng.normal(0, 5)), math.cos(vyaw), math.sin(vyaw),
+                      Rays((0.0, 0.0), m, amin, inc, free))
+        p = TrackParams(seen_margin=float(rng.uniform(0.0, 0.3)), seen_angle=float(rng.uniform(0.0, 0.05)))
+        pts = np.column_stack([sc.ox + rng.uniform(-9, 9, 6), sc.oy + rng.uniform(-9, 9, 6)])
+        want.append(seen_through(sc, pts, p))
+        nonzero += want[-1] > 0
+        nums = [sc.ox, sc.oy, sc.c, sc.s, *m, amin, inc, p.seen_margin, p.seen_angle, n, *free, len(pts), *pts.ravel()]
+        lines.append("seen " + " ".join(repr(float(v)) if not isinstance(v, int) else str(v) for v in nums))
+    out = _run(_config(GuardParams(), load_vehicle()), lines)
+    assert [int(line.split()[1]) for line in out] == want
+    assert 50 < nonzero < 350, "the random cases are all or nothing: the comparison tests little"
 
 
 @pytest.mark.parametrize("edit, error", [

@@ -93,10 +93,20 @@ struct Footprint
 };
 
 // ---------------------------------------------------------------- fields (fields.py)
+// How far each ray saw empty space (fields.Rays): a ray at angle a in the laser's plane points
+// along (m00 cos a + m01 sin a, m10 cos a + m11 sin a) in base_link's x-y plane, from (ox, oy)
+struct Rays
+{
+  double ox = 0.0, oy = 0.0, m00 = 1.0, m01 = 0.0, m10 = 0.0, m11 = 1.0, angle_min = 0.0, inc = 0.0;
+  std::vector<double> free;  // [m] the return's range; range_max for +inf; 0 (unknown) for NaN, -inf, out of limits
+};
+
 struct ScanPoints
 {
   std::vector<Point> xy;  // base_link
   int n_rays = 0, n_invalid = 0, n_too_close = 0;
+  bool has_rays = false;  // false: the points alone (no test of what was seen through)
+  Rays rays;
 };
 
 // "" or what is wrong with a scan's geometry (fields.check_scan)
@@ -129,6 +139,28 @@ inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min,
   ScanPoints out;
   out.n_rays = static_cast<int>(ranges.size());
   out.xy.reserve(ranges.size());
+  out.has_rays = true;
+  Rays& rays = out.rays;
+  rays.ox = mx;
+  rays.oy = my;
+  if (rot == nullptr)
+  {
+    const double c = std::cos(myaw), s = std::sin(myaw);
+    rays.m00 = c;
+    rays.m01 = -s;
+    rays.m10 = s;
+    rays.m11 = c;
+  }
+  else
+  {
+    rays.m00 = rot[0];
+    rays.m01 = rot[1];
+    rays.m10 = rot[3];
+    rays.m11 = rot[4];
+  }
+  rays.angle_min = angle_min;
+  rays.inc = inc;
+  rays.free.assign(ranges.size(), 0.0);
   for (size_t i = 0; i < ranges.size(); ++i)
   {
     double r = ranges[i];
@@ -146,12 +178,16 @@ inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min,
       r = rmin;
     }
     else if (std::isinf(r))
+    {
+      rays.free[i] = rmax;
       continue;
+    }
     else if (r < rmin || r > rmax)
     {
       ++out.n_invalid;
       continue;
     }
+    rays.free[i] = r;
     if (r > max_range)
       continue;
     double dx, dy;
@@ -463,7 +499,8 @@ struct TrackParams
   int min_points = 3;
   double shape_change = 0.25, coast = 0.5, step = 0.1;
   int max_points = 8;
-  double clearance = 0.2;
+  double clearance = 0.2, seen_margin = 0.15, seen_angle = 0.01;
+  int seen_points = 2;
   size_t max_tracks = 200;
 };
 
@@ -494,12 +531,79 @@ inline std::vector<std::pair<size_t, size_t>> clusters(const std::vector<Point>&
   return out;
 }
 
+// A scan's rays placed in the odometric frame (tracks.SeenScan)
+struct SeenScan
+{
+  double t, ox, oy, c, s;
+  Rays rays;
+};
+
+// At most k indices of a..b-1, evenly spread, the first and the last included (tracks.picks)
+inline std::vector<size_t> picks(size_t a, size_t b, long k)
+{
+  const long n = static_cast<long>(b - a);
+  k = std::min<long>(n, k);
+  std::vector<size_t> idx;
+  if (k > 1)
+    for (long i = 0; i < k; ++i)
+      idx.push_back(a + static_cast<size_t>((i * (n - 1)) / (k - 1)));
+  else
+    idx.push_back(a);
+  return idx;
+}
+
+// How many of the points (odometric frame) lie where ``scan`` saw through (tracks.seen_through)
+inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, const TrackParams& p)
+{
+  const Rays& r = scan.rays;
+  const double det = r.m00 * r.m11 - r.m01 * r.m10;
+  const long n = static_cast<long>(r.free.size());
+  if (std::fabs(det) < 1e-6 || n == 0 || r.inc == 0.0)
+    return 0;
+  const double w = 1.0 + p.seen_angle / std::fabs(r.inc);
+  const bool full = std::fabs(r.inc) * static_cast<double>(n) >= 2.0 * M_PI - 0.5 * std::fabs(r.inc);
+  int count = 0;
+  for (const Point& q : pts)
+  {
+    const double dx = q.x - scan.ox, dy = q.y - scan.oy;
+    const double bx = scan.c * dx + scan.s * dy, by = -scan.s * dx + scan.c * dy;
+    const double u = (r.m11 * bx - r.m01 * by) / det, v = (-r.m10 * bx + r.m00 * by) / det;
+    const double rng = std::sqrt(u * u + v * v);
+    const double a = std::atan2(v, u);
+    bool in = false;
+    double fi = 0.0;
+    for (const double cand : { a, a + 2.0 * M_PI, a - 2.0 * M_PI })
+    {
+      const double f = (cand - r.angle_min) / r.inc;
+      if (-0.5 <= f && f <= static_cast<double>(n) - 0.5)
+      {
+        fi = f;
+        in = true;
+        break;
+      }
+    }
+    if (!in)
+      continue;
+    const long lo = static_cast<long>(std::floor(fi - w)), hi = static_cast<long>(std::ceil(fi + w));
+    if ((lo < 0 || hi > n - 1) && !full)
+      continue;
+    const double need = rng + p.seen_margin;
+    bool all = true;
+    for (long i = lo; i <= hi && all; ++i)
+      all = r.free[static_cast<size_t>(((i % n) + n) % n)] >= need;
+    if (all)
+      ++count;
+  }
+  return count;
+}
+
 class MotionTracker
 {
 public:
   struct Obs
   {
     double t, x, y;
+    std::vector<Point> shape;  // the cluster's picked points (odometric frame)
   };
   struct Track
   {
@@ -516,16 +620,30 @@ public:
     tracks_.clear();
     last_stamp = -kInf;
     prediction = Prediction();
+    scans_.clear();
   }
 
-  // A scan's points (base_link, ray order) at ``stamp`` with the odometric pose (x, y, yaw) then
-  const Prediction& update(double stamp, const std::vector<Point>& xy, double ex, double ey, double eyaw)
+  // A scan's points (base_link, ray order) at ``stamp`` with the odometric pose (x, y, yaw)
+  // then, and its rays (null: no test of what was seen through)
+  const Prediction& update(double stamp, const std::vector<Point>& xy, double ex, double ey, double eyaw,
+                           const Rays* rays = nullptr)
   {
     const TrackParams& p = p_;
     if (p.horizon <= 0.0 || !(stamp > last_stamp))
       return prediction;
     last_stamp = stamp;
     const double c = std::cos(eyaw), s = std::sin(eyaw);
+    if (rays == nullptr)
+      scans_.clear();
+    else
+    {
+      std::vector<SeenScan> kept;
+      for (SeenScan& sc : scans_)
+        if (sc.t >= stamp - p.window)
+          kept.push_back(std::move(sc));
+      kept.push_back(SeenScan{ stamp, ex + c * rays->ox - s * rays->oy, ey + s * rays->ox + c * rays->oy, c, s, *rays });
+      scans_ = std::move(kept);
+    }
     struct Found
     {
       double x, y, r;
@@ -616,11 +734,14 @@ public:
       if (std::fabs(f.r - k.radius) > p.shape_change)
         k.hist.clear();
       std::vector<Obs> kept;
-      for (const Obs& o : k.hist)
+      for (Obs& o : k.hist)
         if (o.t >= stamp - p.window)
-          kept.push_back(o);
-      kept.push_back(Obs{ stamp, f.x, f.y });
-      k.hist = kept;
+          kept.push_back(std::move(o));
+      Obs now{ stamp, f.x, f.y, {} };
+      for (size_t i : picks(f.a, f.b, p.max_points))
+        now.shape.push_back(Point{ ex + c * xy[i].x - s * xy[i].y, ey + s * xy[i].x + c * xy[i].y });
+      kept.push_back(std::move(now));
+      k.hist = std::move(kept);
       k.radius = f.r;
       k.last_t = stamp;
       double vx = 0.0, vy = 0.0;
@@ -628,6 +749,8 @@ public:
       const double speed = ok ? std::sqrt(vx * vx + vy * vy) : 0.0;
       k.moving = ok && p.min_speed <= speed && speed <= p.max_speed &&
                  speed * (k.hist.back().t - k.hist.front().t) >= p.min_travel + f.r;
+      if (k.moving && rays != nullptr)
+        k.moving = movedThrough(k);
       k.vx = ok ? vx : 0.0;
       k.vy = ok ? vy : 0.0;
       k.moved = k.moved || k.moving;
@@ -688,17 +811,27 @@ private:
     return true;
   }
 
+  // Whether the track's cluster entered space the scan at its window's start saw through, or
+  // left space the current scan sees through (tracks.MotionTracker._moved_through)
+  bool movedThrough(const Track& k) const
+  {
+    const SeenScan* first = nullptr;
+    for (const SeenScan& sc : scans_)
+      if (sc.t == k.hist.front().t)
+      {
+        first = &sc;
+        break;
+      }
+    if (first == nullptr)
+      return false;
+    return seenThrough(*first, k.hist.back().shape, p_) >= p_.seen_points ||
+           seenThrough(scans_.back(), k.hist.front().shape, p_) >= p_.seen_points;
+  }
+
   void predict(const std::vector<Point>& xy, size_t a, size_t b, double ux, double uy, double speed,
                Prediction& out) const
   {
-    const long n = static_cast<long>(b - a);
-    const long k = std::min<long>(n, p_.max_points);
-    std::vector<size_t> idx;
-    if (k > 1)
-      for (long i = 0; i < k; ++i)
-        idx.push_back(a + static_cast<size_t>((i * (n - 1)) / (k - 1)));
-    else
-      idx.push_back(a);
+    const std::vector<size_t> idx = picks(a, b, p_.max_points);
     const long steps =
         speed > 0.0 ? std::max<long>(1, static_cast<long>(std::ceil(speed * p_.horizon / p_.step))) : 0;
     const double cl = p_.clearance;
@@ -728,6 +861,7 @@ private:
 
   TrackParams p_;
   std::vector<Track> tracks_;
+  std::vector<SeenScan> scans_;  // the window's scans with rays, oldest first
   long next_id_ = 0;
 };
 
@@ -855,7 +989,7 @@ public:
     sc.invalid_fraction = static_cast<double>(points->n_invalid) / std::max(points->n_rays, 1);
     std::array<double, 3> e;
     if (egoAt(stamp, e))
-      trackers_[i].update(stamp, sc.points, e[0], e[1], e[2]);
+      trackers_[i].update(stamp, sc.points, e[0], e[1], e[2], points->has_rays ? &points->rays : nullptr);
   }
 
   // The bicycle model (fields.sweep's) over dt [s] (guard.Guard._advance)
@@ -1371,11 +1505,14 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "track_coast", &c.params.track.coast },
     { "track_step", &c.params.track.step },
     { "track_clearance", &c.params.track.clearance },
+    { "track_seen_margin", &c.params.track.seen_margin },
+    { "track_seen_angle", &c.params.track.seen_angle },
   };
   std::map<std::string, int*> counts = {  // whole numbers: a fraction is an error
     { "track_min_obs", &c.params.track.min_obs },
     { "track_min_points", &c.params.track.min_points },
     { "track_max_points", &c.params.track.max_points },
+    { "track_seen_points", &c.params.track.seen_points },
   };
   std::map<std::string, bool> seen;
   char line[4096];

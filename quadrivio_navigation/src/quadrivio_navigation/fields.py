@@ -55,12 +55,26 @@ from .costmap import Footprint
 
 
 @dataclass(frozen=True)
+class Rays:
+    """How far each ray of a scan saw empty space (the moving-obstacle tracker's test of
+    where something was seen through): a ray's direction at angle ``a`` in the laser's plane
+    is ``(m00 cos a + m01 sin a, m10 cos a + m11 sin a)`` in base_link's x-y plane, from
+    ``origin``."""
+    origin: Tuple[float, float]  # [m] the laser in base_link
+    m: Tuple[float, float, float, float]  # (m00, m01, m10, m11)
+    angle_min: float  # [rad]
+    increment: float  # [rad]
+    free: np.ndarray  # [m] per ray: its return's range; range_max for +inf; 0 (unknown) for NaN, -inf, out of limits
+
+
+@dataclass(frozen=True)
 class ScanPoints:
     """The valid points of one scan in ``base_link`` [m], and what the scan held."""
     xy: np.ndarray  # N x 2
     n_rays: int
     n_invalid: int  # NaN, or finite outside [range_min, range_max]
     n_too_close: int  # -inf (REP 117)
+    rays: Optional[Rays] = None  # None: the points alone (no test of what was seen through)
 
 
 class ScanError(ValueError):
@@ -92,7 +106,9 @@ def scan_points(ranges: Sequence[float], angle_min: float, increment: float, ran
     """The scan's returns as points in ``base_link``, projected on its x-y plane; ``mount``
     is the laser's (x, y, yaw) in base_link [m, m, rad], or with ``rotation`` (its 3 x 3
     rotation into base_link: a laser mounted upside down or tilted) only (x, y) is used.
-    Returns beyond ``max_range`` [m] are left out (too far to matter)."""
+    Returns beyond ``max_range`` [m] are left out (too far to matter); ``rays`` keeps how far
+    each ray saw empty space, those included (a ray the caller set to +inf, e.g. one that hit
+    the ground, counts as nothing seen up to ``range_max``)."""
     r = np.asarray(ranges, dtype=float)
     nan = np.isnan(r)
     too_close = np.isneginf(r)
@@ -112,7 +128,14 @@ def scan_points(ranges: Sequence[float], angle_min: float, increment: float, ran
         dx = rotation[0, 0] * c + rotation[0, 1] * s
         dy = rotation[1, 0] * c + rotation[1, 1] * s
     xy = np.column_stack([mount[0] + d * dx, mount[1] + d * dy])
-    return ScanPoints(xy, len(r), int(np.count_nonzero(bad)), int(np.count_nonzero(too_close)))
+    if rotation is None:
+        c, s = math.cos(mount[2]), math.sin(mount[2])
+        m = (c, -s, s, c)
+    else:
+        m = tuple(float(v) for v in (rotation[0, 0], rotation[0, 1], rotation[1, 0], rotation[1, 1]))
+    free = np.where(finite & ~bad, r, np.where(np.isposinf(r), float(range_max), 0.0))
+    rays = Rays((float(mount[0]), float(mount[1])), m, float(angle_min), float(increment), free)
+    return ScanPoints(xy, len(r), int(np.count_nonzero(bad)), int(np.count_nonzero(too_close)), rays)
 
 
 def sweep(direction: int, h0: float, h1: float, rate: float, speed: float, length: float, ds: float,

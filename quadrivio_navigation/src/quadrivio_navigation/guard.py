@@ -155,6 +155,15 @@ class GuardParams:
     track_clearance: float = param(0.2, lo=0.0, hi=5.0, unit="m",
                                    doc="a thing that has moved (and where it will be) is kept this much further away "
                                        "than a standing one")
+    track_seen_margin: float = param(0.15, lo=0.0, hi=5.0, unit="m",
+                                     doc="a point lies where a scan saw through when the rays near its bearing reached "
+                                         "this far beyond it")
+    track_seen_angle: float = param(0.01, lo=0.0, hi=0.5, unit="rad",
+                                    doc="...near: within this of its bearing, plus one ray (the odometry's heading "
+                                        "error)")
+    track_seen_points: int = param(2, lo=1, hi=1000,
+                                   doc="a track moves only when this many of its points entered or left space a scan "
+                                       "saw through")
 
     def tracks(self) -> TrackParams:
         """The moving obstacles' parameters (the ``track_*`` keys without their prefix)."""
@@ -346,7 +355,7 @@ class Guard:
         sc.points = xy
         ego = self.ego_at(stamp)
         if ego is not None:
-            self.trackers[topic].update(stamp, xy, ego)
+            self.trackers[topic].update(stamp, xy, ego, points.rays)
         sc.invalid_fraction = points.n_invalid / max(points.n_rays, 1)
 
     # ---------------------------------------------------------------- decide

@@ -26,6 +26,19 @@ own motion (no map, no localization: the guard must not depend on the estimate):
   from a moving vehicle, or partly hidden behind its neighbour (a tree behind a tree along
   a row), wanders across its visible face, by up to its size, without the thing moving.
   Clusters of fewer than ``min_points`` returns are not tracked;
+* **seen through** (with the scans' rays): a centroid that travels is not enough, because
+  the visible face of a standing thing can slide further than its visible size: a trunk
+  1.2 m wide passed 0.3 m away shows an arc that turns around it, a trunk of the far row
+  seen through a gap of the near one shows the sliver the gap lets through, and the laser's
+  field of view cuts a thing it passes. None of them can do what only motion does: be where
+  an earlier scan saw through, or leave where the scan now sees through. A point lies where
+  a scan saw through when every ray of that scan within ``seen_angle`` (plus one ray) of its
+  bearing reached ``seen_margin`` beyond it (+inf: to ``range_max``; NaN and -inf: unknown,
+  never through). A track moves only when at least ``seen_points`` of its cluster's points
+  (at most ``max_points``, evenly picked) lie where the scan at the start of its window saw
+  through, or as many of that scan's cluster's points lie where the current scan sees
+  through (the detection-and-tracking literature's free-space evidence; Petrovskaya and
+  Thrun 2009, Wang et al. 2007). Scans given without rays skip this test;
 * **prediction**: a moving track's points (at most ``max_points`` of them) copied along its
   velocity every ``step`` metres over the next ``horizon`` seconds, in the scan's base_link:
   the guard treats them as returns, so the whole stretch the obstacle will cross is
@@ -49,6 +62,8 @@ from typing import List, Optional, Tuple
 
 import numpy as np
 
+from .fields import Rays
+
 
 @dataclass(frozen=True)
 class TrackParams:
@@ -70,6 +85,9 @@ class TrackParams:
     step: float = 0.1  # [m]
     max_points: int = 8
     clearance: float = 0.2  # [m] kept from a thing that has moved, beyond the guard's padding
+    seen_margin: float = 0.15  # [m] a point was seen through: the rays near its bearing reached this far beyond it
+    seen_angle: float = 0.01  # [rad] ...near: within this of its bearing, plus one ray (the odometry's heading error)
+    seen_points: int = 2  # points that entered or left space seen through, for a track to move
     max_tracks: int = 200
 
 
@@ -83,6 +101,7 @@ class Track:
     vy: float = 0.0
     moving: bool = False
     moved: bool = False  # moving at some scan of its life
+    shapes: List[np.ndarray] = field(default_factory=list)  # per hist entry: its picked points (odometric frame)
 
 
 @dataclass
@@ -149,6 +168,62 @@ def _fit(hist, p: TrackParams) -> Optional[Tuple[float, float]]:
     return vx, vy
 
 
+@dataclass(frozen=True)
+class SeenScan:
+    """A scan's rays placed in the odometric frame: the laser at (ox, oy), base_link's heading
+    (c, s) = (cos, sin) of the vehicle's yaw then."""
+    t: float
+    ox: float
+    oy: float
+    c: float
+    s: float
+    rays: Rays
+
+
+def picks(a: int, b: int, k: int) -> List[int]:
+    """At most ``k`` indices of a..b-1, evenly spread, the first and the last included."""
+    n = b - a
+    k = min(n, k)
+    return [a + (i * (n - 1)) // (k - 1) for i in range(k)] if k > 1 else [a]
+
+
+def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
+    """How many of the points (odometric frame) lie where ``scan`` saw through: every ray
+    within ``seen_angle`` (plus one ray) of the point's bearing from the laser reached
+    ``seen_margin`` beyond it, and all those rays are in the scan (a scan all around wraps)."""
+    r_ = scan.rays
+    m00, m01, m10, m11 = r_.m
+    det = m00 * m11 - m01 * m10
+    free = r_.free
+    n = len(free)
+    if abs(det) < 1e-6 or n == 0 or r_.increment == 0.0:
+        return 0
+    w = 1.0 + p.seen_angle / abs(r_.increment)
+    full = abs(r_.increment) * n >= 2.0 * math.pi - 0.5 * abs(r_.increment)  # all around: the rays wrap
+    count = 0
+    for qx, qy in pts:
+        dx, dy = float(qx) - scan.ox, float(qy) - scan.oy
+        bx, by = scan.c * dx + scan.s * dy, -scan.s * dx + scan.c * dy  # base_link then
+        u, v = (m11 * bx - m01 * by) / det, (-m10 * bx + m00 * by) / det  # the laser's plane
+        rng = math.sqrt(u * u + v * v)
+        a = math.atan2(v, u)
+        fi = None
+        for cand in (a, a + 2.0 * math.pi, a - 2.0 * math.pi):
+            f = (cand - r_.angle_min) / r_.increment
+            if -0.5 <= f <= n - 0.5:
+                fi = f
+                break
+        if fi is None:
+            continue
+        lo, hi = int(math.floor(fi - w)), int(math.ceil(fi + w))
+        if (lo < 0 or hi > n - 1) and not full:
+            continue
+        need = rng + p.seen_margin
+        if all(free[i % n] >= need for i in range(lo, hi + 1)):
+            count += 1
+    return count
+
+
 class MotionTracker:
     """One scanner's tracks; :meth:`update` with each scan, its prediction in ``self.prediction``."""
 
@@ -158,21 +233,31 @@ class MotionTracker:
         self.next_id = 0
         self.last_stamp = -math.inf
         self.prediction = Prediction()
+        self.scans: List[SeenScan] = []  # the window's scans with rays, oldest first
 
     def reset(self) -> None:
         self.tracks = []
         self.last_stamp = -math.inf
         self.prediction = Prediction()
+        self.scans = []
 
-    def update(self, stamp: float, xy: np.ndarray, ego: Tuple[float, float, float]) -> Prediction:
+    def update(self, stamp: float, xy: np.ndarray, ego: Tuple[float, float, float],
+               rays: Optional[Rays] = None) -> Prediction:
         """A scan's points (base_link, ray order) at ``stamp`` with the vehicle's odometric pose
-        ``ego`` (x, y, yaw) then. A scan not newer than the last is ignored."""
+        ``ego`` (x, y, yaw) then, and the scan's ``rays`` (None: no test of what was seen
+        through). A scan not newer than the last is ignored."""
         p = self.p
         if p.horizon <= 0.0 or not stamp > self.last_stamp:
             return self.prediction
         self.last_stamp = stamp
         ex, ey, eyaw = ego
         c, s = math.cos(eyaw), math.sin(eyaw)
+        if rays is None:
+            self.scans = []
+        else:
+            ox, oy = rays.origin
+            self.scans = [sc for sc in self.scans if sc.t >= stamp - p.window]
+            self.scans.append(SeenScan(stamp, ex + c * ox - s * oy, ey + s * ox + c * oy, c, s, rays))
         found = []  # (x, y in odom, radius, a, b)
         ranges = clusters(xy, p.cluster_gap)
         if ranges:
@@ -214,13 +299,20 @@ class MotionTracker:
                 k = Track(self.next_id, [], r, stamp)
                 self.next_id += 1
             if abs(r - k.radius) > p.shape_change:
-                k.hist = []
-            k.hist = [h for h in k.hist if h[0] >= stamp - p.window] + [(stamp, fx, fy)]
+                k.hist, k.shapes = [], []
+            keep = [i for i, h in enumerate(k.hist) if h[0] >= stamp - p.window]
+            pk = picks(a, b, p.max_points)
+            bx, by = xy[pk, 0].astype(float), xy[pk, 1].astype(float)
+            shape = np.column_stack([ex + c * bx - s * by, ey + s * bx + c * by])
+            k.hist = [k.hist[i] for i in keep] + [(stamp, fx, fy)]
+            k.shapes = [k.shapes[i] for i in keep] + [shape]
             k.radius, k.last_t = r, stamp
             v = _fit(k.hist, p)
             speed = 0.0 if v is None else math.sqrt(v[0] * v[0] + v[1] * v[1])
             k.moving = (v is not None and p.min_speed <= speed <= p.max_speed and
                         speed * (k.hist[-1][0] - k.hist[0][0]) >= p.min_travel + r)
+            if k.moving and rays is not None:
+                k.moving = self._moved_through(k)
             k.vx, k.vy = v if v is not None else (0.0, 0.0)
             k.moved = k.moved or k.moving
             tracks.append(k)
@@ -235,6 +327,16 @@ class MotionTracker:
                                      np.concatenate(out_v) if out_v else np.zeros(0), moving)
         return self.prediction
 
+    def _moved_through(self, k: Track) -> bool:
+        """Whether track ``k``'s cluster entered space the scan at the start of its window saw
+        through, or left space the current scan sees through."""
+        p = self.p
+        first = next((sc for sc in self.scans if sc.t == k.hist[0][0]), None)
+        if first is None:
+            return False
+        return (seen_through(first, k.shapes[-1], p) >= p.seen_points or
+                seen_through(self.scans[-1], k.shapes[0], p) >= p.seen_points)
+
     def _predict(self, xy, a, b, ux, uy, speed, out_xy, out_v) -> None:
         """The cluster's points a..b-1 (at most max_points, evenly picked) moved by (ux, uy)
         [m/s, base_link] for 1..J steps over the horizon (standing: J = 0, the points as they
@@ -242,9 +344,7 @@ class MotionTracker:
         their speeds) to ``out_xy`` and ``out_v``: step by step, point by point, a point
         before its copies (the order and the arithmetic of the C++ guard's loops)."""
         p = self.p
-        n = b - a
-        k = min(n, p.max_points)
-        idx = [a + (i * (n - 1)) // (k - 1) for i in range(k)] if k > 1 else [a]
+        idx = picks(a, b, p.max_points)
         steps = max(1, int(math.ceil(speed * p.horizon / p.step))) if speed > 0.0 else 0
         cl = p.clearance
 
