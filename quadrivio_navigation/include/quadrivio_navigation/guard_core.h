@@ -672,10 +672,10 @@ public:
         continue;
       found.push_back(Found{ ex + c * bx - s * by, ey + s * bx + c * by, r, ab.first, ab.second });
     }
-    std::vector<Track> live;
-    for (const Track& k : tracks_)
+    std::vector<Track> live;  // moved out of tracks_, which is rebuilt below
+    for (Track& k : tracks_)
       if (stamp - k.last_t <= p.coast)
-        live.push_back(k);
+        live.push_back(std::move(k));
     struct Pair
     {
       double d;
@@ -717,14 +717,14 @@ public:
     std::vector<Track> next;
     for (size_t ti = 0; ti < live.size(); ++ti)
       if (!used_t[ti])
-        next.push_back(live[ti]);
+        next.push_back(std::move(live[ti]));
     Prediction out;
     for (size_t ci = 0; ci < found.size(); ++ci)
     {
       const Found& f = found[ci];
       Track k;
       if (matched[ci] >= 0)
-        k = live[static_cast<size_t>(matched[ci])];
+        k = std::move(live[static_cast<size_t>(matched[ci])]);  // each track matches one cluster at most
       else
       {
         k.ident = next_id_++;
@@ -754,7 +754,6 @@ public:
       k.vx = ok ? vx : 0.0;
       k.vy = ok ? vy : 0.0;
       k.moved = k.moved || k.moving;
-      next.push_back(k);
       if (k.moving)
       {
         ++out.moving;
@@ -762,11 +761,12 @@ public:
       }
       else if (k.moved)
         predict(xy, f.a, f.b, 0.0, 0.0, 0.0, out);
+      next.push_back(std::move(k));
     }
     std::stable_sort(next.begin(), next.end(), [](const Track& a, const Track& b) { return a.ident < b.ident; });
     if (next.size() > p.max_tracks)
       next.erase(next.begin(), next.end() - static_cast<long>(p.max_tracks));
-    tracks_ = next;
+    tracks_ = std::move(next);
     prediction = out;
     return prediction;
   }
