@@ -52,6 +52,26 @@ def test_min_clearance_to_a_person_and_map():
     assert min_clearance(gt, FP, [], None) is None
 
 
+def test_the_simulators_own_map_bodies_replace_the_defaults():
+    """A run that recorded the bodies its simulator built (/ground_truth/map_bodies: a map with
+    other settings than ours, here a tree 2 m wide where the default tree_size would have made
+    a box) is judged against them; without them, against the bodies the defaults build."""
+    from quadrivio_navigation.maps import OccupancyGrid
+
+    data = np.zeros((60, 60), dtype=np.int8)
+    data[20:40, 30:50] = 100  # a 2 m x 2 m blob of 0.1 m cells, (3..5, 2..4) m
+    grid = OccupancyGrid(data=data, resolution=0.1, origin=(0.0, 0.0, 0.0))
+    gt = Series(np.array([0.0, 1.0]), {"x": np.zeros(2), "y": np.full(2, 3.0), "yaw": np.zeros(2),
+                                       "vx": np.zeros(2), "wz": np.zeros(2)})
+    # the defaults: boxes over the cells, the nearest face at x = 3 m
+    box = min_clearance(gt, FP, [], grid)
+    assert box == pytest.approx(3.0 - FP.front, abs=0.06)
+    # the simulator's: one cylinder of 1.5 m radius at the blob's centre (4, 3), nearest at x = 2.5 m
+    tree = [("map_0", "map", "cylinder", 4.0, 3.0, 0.0, 3.0, 3.0)]
+    assert min_clearance(gt, FP, [], grid, bodies=tree) == pytest.approx(2.5 - FP.front, abs=0.06)
+    assert min_clearance(gt, FP, [], None, bodies=tree) == pytest.approx(2.5 - FP.front, abs=0.06)
+
+
 def test_protective_stops_judged_by_the_ground_truth():
     gt = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
     rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0], [4.0, 0, 1.5, 3.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0],
@@ -84,6 +104,22 @@ def test_protective_stops_judged_by_the_ground_truth():
     m = obstacle_metrics(crossing, V)
     assert m["false_stops"] == 0 and m["anticipated_stops"] == 1
     assert obstacle_metrics(crossing, V, anticipation=0.3)["false_stops"] == 1
+    # ...or cross just beyond the field, where the vehicle driving on at 1 m/s would have met
+    # them within the anticipation: 1.0 m beyond the field's end (0.8 m + tolerance 0.5),
+    # crossing at 1.25 m/s
+    def across(beyond):
+        x = 5.0 + FP.front + 0.8 + 0.5 + beyond
+        return [(5.0, [("bob", "person", "cylinder", x, 2.5, 0.0, 0.6, 0.6)]),
+                (9.0, [("bob", "person", "cylinder", x, -2.5, 0.0, 0.6, 0.6)])]
+
+    ahead = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                    vehicle=vehicle, guard=guard_series(rows), actors=across(1.0), contacts=[])
+    m = obstacle_metrics(ahead, V)
+    assert m["false_stops"] == 0 and m["anticipated_stops"] == 1
+    # 4 m beyond: the vehicle would have driven 2 m in the anticipation's 2 s, short of them
+    far = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(), setpoint=setpoint,
+                  vehicle=vehicle, guard=guard_series(rows), actors=across(4.0), contacts=[])
+    assert obstacle_metrics(far, V)["false_stops"] == 1
 
 
 def test_a_recording_without_ground_truth_cannot_judge_its_stops():

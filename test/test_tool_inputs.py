@@ -361,3 +361,36 @@ def test_calibrate_refuses_a_state_on_another_clock(tmp_path, capsys):
     line = _one_clear_line(capsys.readouterr().err)
     assert "/vehicle/state: its stamps are -40 s off the other topics'" in line, line
     assert "--stamp bag" in line and not out.exists()
+
+
+def test_the_map_bodies_the_simulator_built_are_read_back_and_judged_against(tmp_path):
+    """/ground_truth/map_bodies (the simulator's node publishes it latched, from the bodies its
+    core built from the map) round trip through a bag: read_run gives them, and the run's
+    clearance is judged against them rather than against bodies rebuilt with our defaults."""
+    from quadrivio.obstacle_metrics import obstacle_metrics
+    from quadrivio.ros.bag import read_run
+    from quadrivio_description.site import load_site
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_navigation.maps import Block
+    from quadrivio_navigation.costmap import Footprint
+    from quadrivio_sim.ros import converters
+
+    blocks = [Block("cylinder", 4.0, 0.0, 2.0, 2.0, 0.0), Block("box", 0.0, 8.0, 3.0, 1.0, 0.3)]
+    msg = converters.map_bodies(blocks, 1.5, "map", 0.0)
+    assert [(a.name, a.kind, a.shape, a.height) for a in msg.actors] == \
+        [("map_0", "map", "cylinder", 1.5), ("map_1", "map", "box", 1.5)]
+    bag = tmp_path / "bodies.bag"
+    with rosbag.Bag(str(bag), "w") as b:
+        b.write("/ground_truth/map_bodies", msg, rospy.Time.from_sec(0.5))
+        for k in range(50):
+            t = rospy.Time.from_sec(0.5 + 0.1 * k)
+            gt = Odometry()
+            gt.header.stamp, gt.header.frame_id = t, "map"
+            gt.pose.pose.orientation.w = 1.0
+            b.write("/ground_truth/odom", gt, t)
+    vehicle = load_vehicle()
+    run = read_run(str(bag), load_site(), vehicle)
+    assert run.map_bodies == [("map_0", "map", "cylinder", 4.0, 0.0, 0.0, 2.0, 2.0),
+                              ("map_1", "map", "box", 0.0, 8.0, 0.3, 3.0, 1.0)]
+    front = Footprint.from_vehicle(vehicle).front
+    assert obstacle_metrics(run, vehicle)["min_clearance_m"] == pytest.approx(3.0 - front, abs=0.06)

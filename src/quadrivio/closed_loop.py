@@ -635,6 +635,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         guard=_series(rec.guard, ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested",
                                   "zone", "measured", "handlebar_requested", "handlebar_measured")),
         actors=rec.actors,
+        map_bodies=[(f"map_{i}", "map", b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y)
+                    for i, b in enumerate(sim.map_blocks)] if sim.map_blocks else None,
         paths=paths,
         local_marks=np.array(sorted(rec.local_marks)) if rec.local_marks else np.zeros((0, 2)),
         contacts=contacts if (rec.actors or grid is not None) else None,

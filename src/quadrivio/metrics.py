@@ -68,6 +68,7 @@ class RunData:
     footprint: object = None  # quadrivio_navigation.costmap.Footprint (no padding) for collisions
     guard: Series = field(default_factory=Series.empty)  # guard/status: t, action, limit, free, protective, ...
     actors: list = field(default_factory=list)  # ground_truth/actors: [(t, [(name, kind, shape, x, y, yaw, l, w)])]
+    map_bodies: Optional[list] = None  # ground_truth/map_bodies: [(name, kind, shape, x, y, yaw, l, w)]; None: not recorded
     contacts: Optional[list] = None  # ground_truth/contacts: [(t, body, kind, speed)]; None: not recorded
     paths: list = field(default_factory=list)  # every path received: [(t, N x 2)] (replans)
     local_marks: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # local_obstacles' marks, all run

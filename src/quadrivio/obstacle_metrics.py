@@ -14,11 +14,13 @@
 * ``false_stops``: protective stops at a moment when, in the ground truth, no body lay in
   the footprint swept from the true pose as the guard swept it (its direction, from the
   measured handlebar toward the requested one) over the protective distance plus
-  ``tolerance``, nor entered it within the next ``anticipation`` seconds (the guard's
-  ``track_horizon``: it stops for where a moving obstacle will be): nothing was there to
-  stop for; ``anticipated_stops``: those for a body that was not in that field yet but
-  entered it within ``anticipation``; both null when a recording without ground truth has
-  stops (they cannot be judged there);
+  ``tolerance``, nor entered within the next ``anticipation`` seconds (the guard's
+  ``track_horizon``: it stops for where a moving obstacle will be) the field of the vehicle
+  driving on, that footprint swept ``speed * tau`` further after ``tau`` seconds: nothing
+  was there to stop for; ``anticipated_stops``: those for an actor that was not in that
+  field yet but would have entered it had the vehicle not stopped (a person about to cross
+  just beyond the field); both null when a recording without ground truth has stops (they
+  cannot be judged there);
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
@@ -84,30 +86,38 @@ def actors_at(actors, t: float) -> np.ndarray:
     return np.concatenate(pts) if pts else np.zeros((0, 2))
 
 
-# The simulator's map bodies (quadrivio_sim/config/sim.yaml, map:): cells at or above OCCUPIED,
-# a cylinder around each blob no wider than TREE_SIZE, boxes covering the others
+# The simulator's map bodies by default (quadrivio_sim/config/sim.yaml, map:): cells at or above
+# OCCUPIED, a cylinder around each blob no wider than TREE_SIZE, boxes covering the others. A
+# run that recorded /ground_truth/map_bodies gives the bodies its simulator built instead.
 OCCUPIED, TREE_SIZE = 65, 1.2
-_BODIES: Dict[int, tuple] = {}  # id(grid) -> (grid, points): one map, many runs and stops
+_BODIES: Dict[int, tuple] = {}  # id(grid or bodies) -> (them, points): one map, many runs and stops
 
 
-def map_points(grid, occupied: int = OCCUPIED, tree_size: float = TREE_SIZE) -> np.ndarray:
-    """Points every 5 cm on the outlines of the bodies the simulator builds from the map's
-    occupied cells (:func:`quadrivio_navigation.maps.obstacles_from_grid`), map frame. Not
-    the cells' centres: a tree's cylinder reaches the blob's farthest cell corner, 0.14-0.31 m
+def map_points(grid, bodies: Optional[list] = None, occupied: int = OCCUPIED,
+               tree_size: float = TREE_SIZE) -> np.ndarray:
+    """Points every 5 cm on the outlines of the map's bodies, map frame: ``bodies`` (the
+    simulator's own, (name, kind, shape, x, y, yaw, length, width) as on
+    /ground_truth/map_bodies) or, without them, those the simulator builds from the map's
+    occupied cells with its default settings (:func:`quadrivio_navigation.maps.obstacles_from_grid`).
+    Not the cells' centres: a tree's cylinder reaches the blob's farthest cell corner, 0.14-0.31 m
     beyond the outermost centre toward the lane on the orchard's map, so clearances and
     false stops judged by the centres were off by that much."""
-    if grid is None:
+    source = bodies if bodies is not None else grid
+    if source is None:
         return np.zeros((0, 2))
-    cached = _BODIES.get(id(grid))
-    if cached is not None and cached[0] is grid:
+    cached = _BODIES.get(id(source))
+    if cached is not None and cached[0] is source:
         return cached[1]
-    from quadrivio_navigation.maps import obstacles_from_grid
+    if bodies is not None:
+        pts = [_outline_points(shape, x, y, yaw, length, width) for _, _, shape, x, y, yaw, length, width in bodies]
+    else:
+        from quadrivio_navigation.maps import obstacles_from_grid
 
-    blocks = obstacles_from_grid(grid, occupied, tree_size)
-    pts = [_outline_points(b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y) for b in blocks]
+        blocks = obstacles_from_grid(grid, occupied, tree_size)
+        pts = [_outline_points(b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y) for b in blocks]
     out = np.concatenate(pts) if pts else np.zeros((0, 2))
     _BODIES.clear()  # one map at a time: a campaign's worker keeps the last
-    _BODIES[id(grid)] = (grid, out)
+    _BODIES[id(source)] = (source, out)
     return out
 
 
@@ -122,9 +132,9 @@ def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> n
     return np.hypot(du, dw)
 
 
-def min_clearance(gt, fp, actors, grid, stride: int = 1) -> Optional[float]:
+def min_clearance(gt, fp, actors, grid, stride: int = 1, bodies: Optional[list] = None) -> Optional[float]:
     """The smallest footprint-to-body distance over the ground truth [m] (None: no bodies)."""
-    fixed = map_points(grid)  # on the bodies' outlines
+    fixed = map_points(grid, bodies)  # on the bodies' outlines
     if not actors and len(fixed) == 0 or len(gt) == 0:
         return None
     reach = fp.circumscribed_radius + 3.0
@@ -166,8 +176,8 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
         out["collisions"] = len(run.contacts)
         out["collision_events"] = [{"t": c[0], "body": c[1], "kind": c[2], "speed_mps": c[3]} for c in run.contacts]
     fp = Footprint.from_vehicle(vehicle)
-    if run.actors or run.map is not None:
-        out["min_clearance_m"] = min_clearance(run.ground_truth, fp, run.actors, run.map)
+    if run.actors or run.map is not None or run.map_bodies:
+        out["min_clearance_m"] = min_clearance(run.ground_truth, fp, run.actors, run.map, bodies=run.map_bodies)
     if len(g) == 0:
         return out
     action = g["action"]
@@ -178,7 +188,7 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
     moving = np.abs(g["measured"]) >= 0.1 if "measured" in g.cols else np.ones(len(g), dtype=bool)
     out["fault_stops"] = int(sum(1 for i in entered if action[i] == FAULT and moving[i]))  # a stop, not a start-up
     out["zone_stops"] = int(sum(1 for i in entered if action[i] == STOP and g["zone"][i] == 1))
-    fixed = map_points(run.map)
+    fixed = map_points(run.map, run.map_bodies)
     false, anticipated, latencies, by_motion = 0, 0, [], 0
     sp = run.setpoint
     pad = Footprint.from_vehicle(vehicle, 0.15)
@@ -197,13 +207,13 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
             h1 = h0 if not math.isfinite(h1) else h1
             length = float(g["protective"][i]) + tolerance
             speed = abs(float(g["measured"][i])) if "measured" in g.cols else 1.0
-            poses = sweep(direction, h0, h1, vehicle.steering.max_rate, speed, length, 0.05, vehicle.wheelbase,
-                          vehicle.steering.ratio)
             c, s = math.cos(yaw), math.sin(yaw)
 
-            def in_field(pts) -> bool:
+            def in_field(pts, further: float = 0.0) -> bool:
                 if len(pts) == 0:
                     return False
+                poses = sweep(direction, h0, h1, vehicle.steering.max_rate, speed, length + further, 0.05,
+                              vehicle.wheelbase, vehicle.steering.ratio)
                 local = np.column_stack([c * (pts[:, 0] - x) + s * (pts[:, 1] - y),
                                          -s * (pts[:, 0] - x) + c * (pts[:, 1] - y)])
                 return math.isfinite(free_distance(pad, poses, local, 0.05).distance)
@@ -212,7 +222,7 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
             if len(fixed):
                 pts = np.concatenate([pts, fixed]) if len(pts) else fixed
             if not in_field(pts):
-                later = run.actors and any(in_field(actors_at(run.actors, t + tau))
+                later = run.actors and any(in_field(actors_at(run.actors, t + tau), speed * tau)
                                            for tau in np.arange(0.1, anticipation + 1e-9, 0.1))
                 if later:
                     anticipated += 1

@@ -36,6 +36,7 @@ TOPICS = {
     "map": "/map",
     "guard": "/guard/status",
     "actors": "/ground_truth/actors",
+    "map_bodies": "/ground_truth/map_bodies",
     "contacts": "/ground_truth/contacts",
     "local": "/local_obstacles",
     "gps_decisions": "/localization/gps_decisions",
@@ -117,6 +118,7 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
     goal = None
     grid = None
     actors: List[tuple] = []
+    map_bodies = None
     paths: List[tuple] = []  # (stamp, xy) of every path: a replan replaces the route from then on
     local_marks: set = set()  # every cell the local obstacle layer marked during the run (map frame, 0.1 m)
     contacts = None
@@ -149,6 +151,10 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
                     continue
                 if kind == "map":
                     grid = _grid(m)
+                    continue
+                if kind == "map_bodies":
+                    map_bodies = [(a.name, a.kind, a.shape, a.pose.x, a.pose.y, a.pose.theta, a.length, a.width)
+                                  for a in m.actors]
                     continue
                 if kind == "actors":
                     actors.append((m.header.stamp.to_sec(), [(a.name, a.kind, a.shape, a.pose.x, a.pose.y,
@@ -228,12 +234,13 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
                                       "requested", "zone", "measured", "handlebar_requested",
                                       "handlebar_measured")),
         actors=sorted(actors, key=lambda a: a[0]),
+        map_bodies=map_bodies,
         paths=paths,
         local_marks=np.array(sorted(local_marks)) if local_marks else np.zeros((0, 2)),
         # the simulator reports contacts as they begin: none recorded in a simulated run with
         # bodies to touch (actors, obstacles, a map) is none made
         contacts=contacts if contacts is not None else (
-            [] if rows["ground_truth"] and (actors or grid is not None) else None),
+            [] if rows["ground_truth"] and (actors or grid is not None or map_bodies) else None),
     )
 
 

@@ -162,6 +162,23 @@ def actors(samples, map_frame: str, t: float):
     return m
 
 
+def map_bodies(blocks, height: float, map_frame: str, t: float):
+    """``ground_truth/map_bodies`` (quadrivio_sim/ActorArray, kind ``map``): the bodies the
+    simulator built from the map's occupied cells (:class:`quadrivio_navigation.maps.Block` s)."""
+    from quadrivio_sim.msg import Actor, ActorArray
+
+    m = ActorArray()
+    m.header.stamp = stamp(t)
+    m.header.frame_id = map_frame
+    for i, b in enumerate(blocks):
+        out = Actor()
+        out.name, out.kind, out.shape = f"map_{i}", "map", b.kind
+        out.pose.x, out.pose.y, out.pose.theta = b.x, b.y, b.yaw
+        out.length, out.width, out.height = b.size_x, b.size_y, height
+        m.actors.append(out)
+    return m
+
+
 def contact(e, map_frame: str):
     """``ground_truth/contacts`` (quadrivio_sim/Contact) from a :class:`ContactEvent`."""
     from quadrivio_sim.msg import Contact

@@ -44,7 +44,8 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
 
 Publishes: ``/clock`` (rosgraph_msgs/Clock), ``ground_truth/odom`` (nav_msgs/Odometry),
 ``ground_truth/actors`` (quadrivio_sim/ActorArray: the scenario's actors and obstacles, at
-``actors_rate``, when it has any), ``ground_truth/contacts`` (quadrivio_sim/Contact: each
+``actors_rate``, when it has any), ``ground_truth/map_bodies`` (quadrivio_sim/ActorArray,
+latched: the bodies built from the map's occupied cells, when there is a map), ``ground_truth/contacts`` (quadrivio_sim/Contact: each
 contact of the vehicle with a body that is not the ground, as it begins),
 ``joint_states`` (sensor_msgs/JointState), ``/tf``, ``sim/gps`` (quadrivio_sim/RawGps),
 ``sim/imu`` (sensor_msgs/Imu), ``sim/mag`` (sensor_msgs/MagneticField),
@@ -233,6 +234,11 @@ class SimNode:
 
         self.pub_actors = direct_publisher("ground_truth/actors", ActorArray, queue_size=10)
         self.pub_contacts = rospy.Publisher("ground_truth/contacts", Contact, queue_size=100)
+        if self.sim.map_blocks:  # what the metrics judge clearances against, as the simulator built it
+            self.pub_map_bodies = rospy.Publisher("ground_truth/map_bodies", ActorArray, queue_size=1, latch=True)
+            self.pub_map_bodies.publish(converters.map_bodies(self.sim.map_blocks,
+                                                              self.sim_params.map.obstacle_height,
+                                                              self.node_params.map_frame, self.sim.t))
         self.pub_gps = direct_publisher("sim/gps", RawGps, queue_size=50)
         self.pub_imu = direct_publisher("sim/imu", Imu, queue_size=200)
         self.pub_mag = direct_publisher("sim/mag", MagneticField, queue_size=100)
