@@ -552,7 +552,9 @@ inline std::vector<size_t> picks(size_t a, size_t b, long k)
   return idx;
 }
 
-// How many of the points (odometric frame) lie where ``scan`` saw through (tracks.seen_through)
+// How many of the points (odometric frame) lie where ``scan`` saw through: every ray passing
+// within seen_margin of one (widened by seen_angle and a ray) reached seen_margin beyond it
+// (tracks.seen_through)
 inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, const TrackParams& p)
 {
   const Rays& r = scan.rays;
@@ -560,7 +562,6 @@ inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, cons
   const long n = static_cast<long>(r.free.size());
   if (std::fabs(det) < 1e-6 || n == 0 || r.inc == 0.0)
     return 0;
-  const double w = 1.0 + p.seen_angle / std::fabs(r.inc);
   const bool full = std::fabs(r.inc) * static_cast<double>(n) >= 2.0 * M_PI - 0.5 * std::fabs(r.inc);
   int count = 0;
   for (const Point& q : pts)
@@ -569,7 +570,10 @@ inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, cons
     const double bx = scan.c * dx + scan.s * dy, by = -scan.s * dx + scan.c * dy;
     const double u = (r.m11 * bx - r.m01 * by) / det, v = (-r.m10 * bx + r.m00 * by) / det;
     const double rng = std::sqrt(u * u + v * v);
+    if (rng <= p.seen_margin)  // at the laser: nothing to see through
+      continue;
     const double a = std::atan2(v, u);
+    const double w = 1.0 + (p.seen_angle + std::asin(p.seen_margin / rng)) / std::fabs(r.inc);
     bool in = false;
     double fi = 0.0;
     for (const double cand : { a, a + 2.0 * M_PI, a - 2.0 * M_PI })

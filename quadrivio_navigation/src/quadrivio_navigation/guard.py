@@ -156,11 +156,10 @@ class GuardParams:
                                    doc="a thing that has moved (and where it will be) is kept this much further away "
                                        "than a standing one")
     track_seen_margin: float = param(0.15, lo=0.0, hi=5.0, unit="m",
-                                     doc="a point lies where a scan saw through when the rays near its bearing reached "
-                                         "this far beyond it")
+                                     doc="a point lies where a scan saw through when the rays passing within this of "
+                                         "it reached this far beyond it")
     track_seen_angle: float = param(0.01, lo=0.0, hi=0.5, unit="rad",
-                                    doc="...near: within this of its bearing, plus one ray (the odometry's heading "
-                                        "error)")
+                                    doc="...those rays widened by this, plus one ray (the odometry's heading error)")
     track_seen_points: int = param(2, lo=1, hi=1000,
                                    doc="a track moves only when this many of its points entered or left space a scan "
                                        "saw through")

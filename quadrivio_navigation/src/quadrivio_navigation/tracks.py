@@ -32,13 +32,16 @@ own motion (no map, no localization: the guard must not depend on the estimate):
   seen through a gap of the near one shows the sliver the gap lets through, and the laser's
   field of view cuts a thing it passes. None of them can do what only motion does: be where
   an earlier scan saw through, or leave where the scan now sees through. A point lies where
-  a scan saw through when every ray of that scan within ``seen_angle`` (plus one ray) of its
-  bearing reached ``seen_margin`` beyond it (+inf: to ``range_max``; NaN and -inf: unknown,
-  never through). A track moves only when at least ``seen_points`` of its cluster's points
+  a scan saw through when every ray of that scan passing within ``seen_margin`` of it
+  (widened by ``seen_angle`` and one ray) reached ``seen_margin`` beyond it (+inf: to
+  ``range_max``; NaN and -inf: unknown, never through). A track moves only when at least ``seen_points`` of its cluster's points
   (at most ``max_points``, evenly picked) lie where the scan at the start of its window saw
   through, or as many of that scan's cluster's points lie where the current scan sees
   through (the detection-and-tracking literature's free-space evidence; Petrovskaya and
-  Thrun 2009, Wang et al. 2007). Scans given without rays skip this test;
+  Thrun 2009, Wang et al. 2007). The rays that count are those passing within
+  ``seen_margin`` of the point: a point is a few centimetres off where it is (range noise,
+  the odometry), and seen from another side a trunk's noisy return can lie just outside its
+  silhouette. Scans given without rays skip this test;
 * **prediction**: a moving track's points (at most ``max_points`` of them) copied along its
   velocity every ``step`` metres over the next ``horizon`` seconds, in the scan's base_link:
   the guard treats them as returns, so the whole stretch the obstacle will cross is
@@ -85,8 +88,8 @@ class TrackParams:
     step: float = 0.1  # [m]
     max_points: int = 8
     clearance: float = 0.2  # [m] kept from a thing that has moved, beyond the guard's padding
-    seen_margin: float = 0.15  # [m] a point was seen through: the rays near its bearing reached this far beyond it
-    seen_angle: float = 0.01  # [rad] ...near: within this of its bearing, plus one ray (the odometry's heading error)
+    seen_margin: float = 0.15  # [m] a point was seen through: the rays passing within this of it reached this far beyond
+    seen_angle: float = 0.01  # [rad] ...those rays widened by this, plus one ray (the odometry's heading error)
     seen_points: int = 2  # points that entered or left space seen through, for a track to move
     max_tracks: int = 200
 
@@ -189,8 +192,10 @@ def picks(a: int, b: int, k: int) -> List[int]:
 
 def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
     """How many of the points (odometric frame) lie where ``scan`` saw through: every ray
-    within ``seen_angle`` (plus one ray) of the point's bearing from the laser reached
-    ``seen_margin`` beyond it, and all those rays are in the scan (a scan all around wraps)."""
+    passing within ``seen_margin`` of the point (widened by ``seen_angle`` and one ray)
+    reached ``seen_margin`` beyond it, and all those rays are in the scan (a scan all around
+    wraps). A point a few centimetres off a trunk's silhouette (range noise seen from
+    another side) is not through: the rays beside it hit the trunk."""
     r_ = scan.rays
     m00, m01, m10, m11 = r_.m
     det = m00 * m11 - m01 * m10
@@ -198,7 +203,6 @@ def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
     n = len(free)
     if abs(det) < 1e-6 or n == 0 or r_.increment == 0.0:
         return 0
-    w = 1.0 + p.seen_angle / abs(r_.increment)
     full = abs(r_.increment) * n >= 2.0 * math.pi - 0.5 * abs(r_.increment)  # all around: the rays wrap
     count = 0
     for qx, qy in pts:
@@ -206,7 +210,11 @@ def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
         bx, by = scan.c * dx + scan.s * dy, -scan.s * dx + scan.c * dy  # base_link then
         u, v = (m11 * bx - m01 * by) / det, (-m10 * bx + m00 * by) / det  # the laser's plane
         rng = math.sqrt(u * u + v * v)
+        if rng <= p.seen_margin:  # at the laser: nothing to see through
+            continue
         a = math.atan2(v, u)
+        # the rays passing within seen_margin of the point (its noise, the odometry's), seen_angle more, one ray more
+        w = 1.0 + (p.seen_angle + math.asin(p.seen_margin / rng)) / abs(r_.increment)
         fi = None
         for cand in (a, a + 2.0 * math.pi, a - 2.0 * math.pi):
             f = (cand - r_.angle_min) / r_.increment
