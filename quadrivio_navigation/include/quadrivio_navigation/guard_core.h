@@ -645,7 +645,8 @@ public:
       for (SeenScan& sc : scans_)
         if (sc.t >= stamp - p.window)
           kept.push_back(std::move(sc));
-      kept.push_back(SeenScan{ stamp, ex + c * rays->ox - s * rays->oy, ey + s * rays->ox + c * rays->oy, c, s, *rays });
+      kept.push_back(
+          SeenScan{ stamp, ex + c * rays->ox - s * rays->oy, ey + s * rays->ox + c * rays->oy, c, s, *rays });
       scans_ = std::move(kept);
     }
     struct Found

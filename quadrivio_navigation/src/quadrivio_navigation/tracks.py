@@ -34,14 +34,14 @@ own motion (no map, no localization: the guard must not depend on the estimate):
   an earlier scan saw through, or leave where the scan now sees through. A point lies where
   a scan saw through when every ray of that scan passing within ``seen_margin`` of it
   (widened by ``seen_angle`` and one ray) reached ``seen_margin`` beyond it (+inf: to
-  ``range_max``; NaN and -inf: unknown, never through). A track moves only when at least ``seen_points`` of its cluster's points
-  (at most ``max_points``, evenly picked) lie where the scan at the start of its window saw
-  through, or as many of that scan's cluster's points lie where the current scan sees
-  through (the detection-and-tracking literature's free-space evidence; Petrovskaya and
-  Thrun 2009, Wang et al. 2007). The rays that count are those passing within
-  ``seen_margin`` of the point: a point is a few centimetres off where it is (range noise,
-  the odometry), and seen from another side a trunk's noisy return can lie just outside its
-  silhouette. Scans given without rays skip this test;
+  ``range_max``; NaN and -inf: unknown, never through). A track moves only when at least
+  ``seen_points`` of its cluster's points (at most ``max_points``, evenly picked) lie where
+  the scan at the start of its window saw through, or as many of that scan's cluster's
+  points lie where the current scan sees through (the detection-and-tracking literature's
+  free-space evidence; Petrovskaya and Thrun 2009, Wang et al. 2007). The rays that count
+  are those passing within ``seen_margin`` of the point: a point is a few centimetres off
+  where it is (range noise, the odometry), and seen from another side a trunk's noisy
+  return can lie just outside its silhouette. Scans given without rays skip this test;
 * **prediction**: a moving track's points (at most ``max_points`` of them) copied along its
   velocity every ``step`` metres over the next ``horizon`` seconds, in the scan's base_link:
   the guard treats them as returns, so the whole stretch the obstacle will cross is
@@ -88,7 +88,7 @@ class TrackParams:
     step: float = 0.1  # [m]
     max_points: int = 8
     clearance: float = 0.2  # [m] kept from a thing that has moved, beyond the guard's padding
-    seen_margin: float = 0.15  # [m] a point was seen through: the rays passing within this of it reached this far beyond
+    seen_margin: float = 0.15  # [m] seen through: the rays passing within this of a point reached this far beyond
     seen_angle: float = 0.01  # [rad] ...those rays widened by this, plus one ray (the odometry's heading error)
     seen_points: int = 2  # points that entered or left space seen through, for a track to move
     max_tracks: int = 200
