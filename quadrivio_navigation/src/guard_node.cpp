@@ -512,6 +512,12 @@ private:
                            tr.prediction.moving, tr.tracks().size());
     }
     add("moving obstacles", tracked);
+    // tracks whose centroid slid like a moving thing's, refused for want of seen-through evidence
+    std::string refused;
+    for (size_t i = 0; i < config_.params.scanners.size(); ++i)
+      refused += g::format("%s%s: %ld", i ? ", " : "", config_.params.scanners[i].topic.c_str(),
+                           core_->tracker(i).refused);
+    add("standing things refused as moving", refused);
     add("ground returns (DEM)", config_.terrain.empty() ? "no DEM" : std::to_string(ground_returns_));
     add("inputs rejected", inputs_.summary());
     diagnostic_msgs::DiagnosticArray a;

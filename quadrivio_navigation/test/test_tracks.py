@@ -79,7 +79,8 @@ SCANNERS = {"ours": (541, 0.01, 0.1, 0.0), "fine_noisy": (1081, 0.03, 0.04, 0.5)
 
 def _first_moving(circles_at, duration, speed=0.0, rays=True, scanner="ours", p=TrackParams()):
     """Drive a tracker along x at ``speed`` for ``duration`` seconds of a scanner's scans: the
-    first time a track moves, and how many scans had one."""
+    first time a track moves, how many scans had one, and the tracks refused (a centroid that
+    moved where no scan saw anything move)."""
     n, noise, period, mixed = SCANNERS[scanner]
     tr = MotionTracker(p)
     rng = np.random.default_rng(7)
@@ -92,7 +93,7 @@ def _first_moving(circles_at, duration, speed=0.0, rays=True, scanner="ours", p=
         if pr.moving:
             scans += 1
             first = t if first is None else first
-    return first, scans
+    return first, scans, tr.refused
 
 
 def test_clusters_split_where_neighbours_are_apart():
@@ -151,9 +152,12 @@ def test_trunks_passed_close_and_a_far_row_seen_through_gaps_never_move(scanner)
     mixed pixels at the silhouettes."""
     trees = [(x, y, 0.57) for x in np.arange(4.0, 25.0, 3.0) for y in (-1.45, 1.45)]
     trees += [(x, y, 0.57) for x in np.arange(4.0, 25.0, 1.5) for y in (-7.5, 7.5)]
-    first, scans = _first_moving(lambda t: trees, 7.0, speed=2.0, rays=False, scanner=scanner)
+    first, scans, refused = _first_moving(lambda t: trees, 7.0, speed=2.0, rays=False, scanner=scanner)
     assert scans >= 5, "the centroids alone no longer take trunks for things that move: the case tests little"
-    assert _first_moving(lambda t: trees, 7.0, speed=2.0, scanner=scanner) == (None, 0)
+    assert refused == 0  # without rays nothing is refused
+    first, scans, refused = _first_moving(lambda t: trees, 7.0, speed=2.0, scanner=scanner)
+    assert (first, scans) == (None, 0)
+    assert refused >= 5  # counted: the guard's diagnostics report it
 
 
 @pytest.mark.parametrize("scanner", sorted(SCANNERS))
@@ -171,8 +175,8 @@ def test_a_person_crossing_walking_away_or_coming_is_found_as_early_with_the_ray
         return trees + [(x0 + 1.4 * u * t, y0 + 1.4 * v * t, 0.3)]
 
     # standing: what comes and goes along a ray has no other clue
-    without, _ = _first_moving(circles, 2.5, rays=False, scanner=scanner)
-    with_rays, _ = _first_moving(circles, 2.5, scanner=scanner)
+    without, _, _ = _first_moving(circles, 2.5, rays=False, scanner=scanner)
+    with_rays, _, _ = _first_moving(circles, 2.5, scanner=scanner)
     assert without is not None and without <= 0.6, without
     assert with_rays is not None and with_rays <= without + 2 * SCANNERS[scanner][2] + 1e-9, (with_rays, without)
 

@@ -755,7 +755,10 @@ public:
       k.moving = ok && p.min_speed <= speed && speed <= p.max_speed &&
                  speed * (k.hist.back().t - k.hist.front().t) >= p.min_travel + f.r;
       if (k.moving && rays != nullptr)
+      {
         k.moving = movedThrough(k);
+        refused += k.moving ? 0 : 1;
+      }
       k.vx = ok ? vx : 0.0;
       k.vy = ok ? vy : 0.0;
       k.moved = k.moved || k.moving;
@@ -778,6 +781,7 @@ public:
 
   const std::vector<Track>& tracks() const { return tracks_; }
   double last_stamp = -kInf;
+  long refused = 0;  // (track, scan) pairs whose centroid moved but that no scan saw move, over the tracker's life
   Prediction prediction;
 
 private:

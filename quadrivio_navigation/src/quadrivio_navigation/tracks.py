@@ -242,6 +242,7 @@ class MotionTracker:
         self.last_stamp = -math.inf
         self.prediction = Prediction()
         self.scans: List[SeenScan] = []  # the window's scans with rays, oldest first
+        self.refused = 0  # (track, scan) pairs whose centroid moved but that no scan saw move, over the tracker's life
 
     def reset(self) -> None:
         self.tracks = []
@@ -321,6 +322,7 @@ class MotionTracker:
                         speed * (k.hist[-1][0] - k.hist[0][0]) >= p.min_travel + r)
             if k.moving and rays is not None:
                 k.moving = self._moved_through(k)
+                self.refused += not k.moving
             k.vx, k.vy = v if v is not None else (0.0, 0.0)
             k.moved = k.moved or k.moving
             tracks.append(k)

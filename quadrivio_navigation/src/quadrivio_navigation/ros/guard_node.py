@@ -292,6 +292,9 @@ class GuardNode:
         stat.add("zone stops", str(core.zone_stops))
         stat.add("moving obstacles", ", ".join(
             f"{topic}: {tr.prediction.moving} moving of {len(tr.tracks)} tracked" for topic, tr in core.trackers.items()))
+        # tracks whose centroid slid like a moving thing's, refused for want of seen-through evidence
+        stat.add("standing things refused as moving", ", ".join(
+            f"{topic}: {tr.refused}" for topic, tr in core.trackers.items()))
         stat.add("ground returns (DEM)", str(self.ground_returns) if self.heights is not None else "no DEM")
         stat.add("inputs rejected", self.inputs.summary())
         return stat
