@@ -93,7 +93,11 @@ int main()
           sc.rays.angle_min >> sc.rays.inc >> tp.seen_margin >> tp.seen_angle >> n;
       sc.rays.free.resize(n);
       for (auto& f : sc.rays.free)
-        in >> f;
+      {
+        std::string word;
+        in >> word;
+        f = std::strtod(word.c_str(), nullptr);  // "nan": an unknown ray
+      }
       in >> k;
       std::vector<g::Point> pts(k);
       for (auto& q : pts)

@@ -117,6 +117,11 @@ def test_rep117_ranges():
     a_close, a_far = -0.25 + 2 * inc, -0.25 + 5 * inc
     assert sp.xy[0] == pytest.approx([1.0 + 0.1 * math.cos(a_close), 0.1 * math.sin(a_close)])
     assert sp.xy[1] == pytest.approx([1.0 + 5.0 * math.cos(a_far), 5.0 * math.sin(a_far)])
+    # how far each ray saw empty space (the tracker's seen-through test): the return's range,
+    # -inf up to range_min, +inf up to range_max, nothing known (NaN) of NaN and the ranges
+    # outside the limits
+    assert np.array_equal(sp.rays.free, [math.nan, 30.0, 0.1, math.nan, math.nan, 5.0], equal_nan=True)
+    assert sp.rays.origin == (1.0, 0.0) and sp.rays.m == (1.0, -0.0, 0.0, 1.0)
     # a laser mounted backwards (yaw pi): a return ahead of it is behind the vehicle
     sp = scan_points([2.0], 0.0, 0.1, 0.1, 30.0, (-0.4, 0.0, math.pi))
     assert sp.xy[0] == pytest.approx([-2.4, 0.0])

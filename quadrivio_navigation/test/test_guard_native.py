@@ -291,6 +291,10 @@ def test_moving_obstacles_match_the_python_core(seed):
                 circles.append((px, y0 + u * max(0.0, t - 1.0 - t0), r))
             fov = math.radians(270.0)
             rr = ranges((x, y, yaw), circles, mount=(1.7, 0.0), fov=fov, rng=rng, noise=0.01)
+            # dropouts (NaN) and returns beyond range_max: unknown rays (-inf, something at the
+            # laser's window, is an obstacle at range_min itself, and would stop the vehicle)
+            odd = rng.random(len(rr)) < 0.02
+            rr[odd] = rng.choice(np.array([np.nan, 35.0], dtype=np.float32), int(odd.sum()))
             events.append(("ranges", 0, t - 0.03, (-fov / 2, fov / 540, 0.05, 30.0, 1.7, 0.0, 0.0, 20.0), rr))
             events.append(("scan", 1, t - 0.03, 541, 0, np.zeros((0, 2))))
         events.append(("decide", t, 3.0, h, 0.0))
@@ -337,7 +341,10 @@ def test_what_a_scan_saw_through_matches_the_python_core():
         m = [(c, -s, s, c), (c, s, s, -c), (c * 0.8, -s, s * 0.8, c)][kind]  # yawed, upside down, tilted
         free = np.maximum(float(rng.uniform(3.0, 12.0)) + rng.normal(0.0, 0.3, n), 0.0)
         few = rng.random(n) < 0.05
-        free[few] = rng.choice([0.0, 1.0, 2.5], int(few.sum()))  # unknown rays and near returns
+        free[few] = rng.choice([np.nan, 1.0, 2.5], int(few.sum()))  # unknown rays and near returns
+        if rng.random() < 0.2:  # a dropout: a run of unknown rays
+            j = int(rng.integers(n))
+            free[j:j + int(rng.integers(2, 30))] = np.nan
         vyaw = float(rng.uniform(-math.pi, math.pi))
         sc = SeenScan(0.0, float(rng.normal(0, 5)), float(rng.normal(0, 5)), math.cos(vyaw), math.sin(vyaw),
                       Rays((0.0, 0.0), m, amin, inc, free))

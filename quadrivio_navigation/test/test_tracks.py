@@ -184,8 +184,9 @@ def test_a_person_crossing_walking_away_or_coming_is_found_as_early_with_the_ray
 def test_what_a_scan_saw_through_by_hand():
     """seen_through on a 360-degree laser mounted upside down (its angles turn the other way)
     1 m ahead of base_link, the vehicle at (10, 5) heading +y: rays 1 degree apart, every ray
-    free to 8 m except two. A point is through when every ray passing within seen_margin of
-    it (widened by seen_angle and one ray) reached seen_margin beyond it."""
+    free to 8 m except two and some unknown (NaN). A point is through when none of the rays
+    passing within seen_margin of it (widened by seen_angle and one ray) stopped short of
+    seen_margin beyond it, and at least half of them are known."""
     n = 360
     free = np.full(n, 8.0)
     inc = math.radians(1.0)
@@ -193,7 +194,9 @@ def test_what_a_scan_saw_through_by_hand():
     # the laser's angle a points along (cos a, -sin a) in base_link; base_link's +x is the map's +y
     i_left = int(round((math.radians(-90.0) - amin) / inc))  # a = -90 deg: base_link +y, the map's -x
     free[i_left] = 3.0  # a return at 3 m
-    free[int(round((math.radians(90.0) - amin) / inc))] = 0.0  # unknown (NaN) toward base_link -y
+    i_right = int(round((math.radians(90.0) - amin) / inc))  # toward base_link -y, the map's +x
+    free[i_right] = math.nan  # one unknown ray (a dropout)
+    free[i_right + 20:i_right + 40] = math.nan  # and a run of them, 20-40 deg further round
     rays = Rays((1.0, 0.0), (1.0, 0.0, 0.0, -1.0), amin, inc, free)
     sc = SeenScan(0.0, 10.0, 6.0, 0.0, 1.0, rays)  # the laser at (10, 6): base_link (1, 0) of a vehicle at (10, 5)
     p = TrackParams(seen_margin=0.15, seen_angle=0.01)
@@ -211,7 +214,14 @@ def test_what_a_scan_saw_through_by_hand():
     # whole ray: 5 rays aside the return's ray still counts, 6 rays aside it does not
     assert through(6.9, 6.0 + 3.1 * math.tan(math.radians(5.0))) == 0
     assert through(6.9, 6.0 + 3.1 * math.tan(math.radians(6.0))) == 1
-    assert through(12.0, 6.0) == 0  # toward the unknown ray
+    assert through(12.0, 6.0) == 1  # along the unknown ray: its neighbours saw through, it says nothing
+    # 2 m along the laser's angle a = 120 deg, in the run of unknown rays: base_link 2 (cos a, -sin a),
+    # the map's (10 + 2 sin a, 6 + 2 cos a); fewer than half of the rays near it are known
+    a = math.radians(120.0)
+    assert through(10.0 + 2.0 * math.sin(a), 6.0 + 2.0 * math.cos(a)) == 0
+    assert through(10.0 - 2.0 * math.sin(a), 6.0 + 2.0 * math.cos(a)) == 1  # at -120 deg, all known and free
+    free[i_right] = 1.5  # a return at 1.5 m there instead
+    assert through(12.0, 6.0) == 0
     assert through(10.0, 1.0) == 1  # behind the vehicle, across angle_min = -180 deg (the wrap)
     assert through(10.0, 6.0 + 0.1) == 0  # closer to the laser than seen_margin: nothing to see through
     assert seen_through(sc, np.array([[10.0, 11.0], [8.0, 6.0], [6.9, 6.0]]), p) == 2

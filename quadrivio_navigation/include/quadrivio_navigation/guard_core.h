@@ -98,7 +98,7 @@ struct Footprint
 struct Rays
 {
   double ox = 0.0, oy = 0.0, m00 = 1.0, m01 = 0.0, m10 = 0.0, m11 = 1.0, angle_min = 0.0, inc = 0.0;
-  std::vector<double> free;  // [m] the return's range; range_max for +inf; 0 (unknown) for NaN, -inf, out of limits
+  std::vector<double> free;  // [m] the return's range (-inf: range_min); range_max for +inf; NaN (unknown) else
 };
 
 struct ScanPoints
@@ -160,7 +160,7 @@ inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min,
   }
   rays.angle_min = angle_min;
   rays.inc = inc;
-  rays.free.assign(ranges.size(), 0.0);
+  rays.free.assign(ranges.size(), std::numeric_limits<double>::quiet_NaN());
   for (size_t i = 0; i < ranges.size(); ++i)
   {
     double r = ranges[i];
@@ -187,7 +187,7 @@ inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min,
       ++out.n_invalid;
       continue;
     }
-    rays.free[i] = r;
+    rays.free[i] = r;  // -inf: a return at range_min
     if (r > max_range)
       continue;
     double dx, dy;
@@ -552,9 +552,9 @@ inline std::vector<size_t> picks(size_t a, size_t b, long k)
   return idx;
 }
 
-// How many of the points (odometric frame) lie where ``scan`` saw through: every ray passing
-// within seen_margin of one (widened by seen_angle and a ray) reached seen_margin beyond it
-// (tracks.seen_through)
+// How many of the points (odometric frame) lie where ``scan`` saw through: of the rays passing
+// within seen_margin of one (widened by seen_angle and a ray), none stopped short of
+// seen_margin beyond it and at least half are known (tracks.seen_through)
 inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, const TrackParams& p)
 {
   const Rays& r = scan.rays;
@@ -592,10 +592,19 @@ inline int seenThrough(const SeenScan& scan, const std::vector<Point>& pts, cons
     if ((lo < 0 || hi > n - 1) && !full)
       continue;
     const double need = rng + p.seen_margin;
-    bool all = true;
-    for (long i = lo; i <= hi && all; ++i)
-      all = r.free[static_cast<size_t>(((i % n) + n) % n)] >= need;
-    if (all)
+    bool short_of = false;
+    long known = 0;
+    for (long i = lo; i <= hi && !short_of; ++i)
+    {
+      const double f = r.free[static_cast<size_t>(((i % n) + n) % n)];
+      if (std::isnan(f))  // unknown
+        continue;
+      if (f < need)
+        short_of = true;
+      else
+        ++known;
+    }
+    if (!short_of && 2 * known >= hi - lo + 1)
       ++count;
   }
   return count;

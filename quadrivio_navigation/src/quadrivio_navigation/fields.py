@@ -64,7 +64,8 @@ class Rays:
     m: Tuple[float, float, float, float]  # (m00, m01, m10, m11)
     angle_min: float  # [rad]
     increment: float  # [rad]
-    free: np.ndarray  # [m] per ray: its return's range; range_max for +inf; 0 (unknown) for NaN, -inf, out of limits
+    free: np.ndarray  # [m] per ray: its return's range (-inf: range_min); range_max for +inf; NaN (unknown) for NaN
+    #                   and finite ranges outside the limits
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,8 @@ def scan_points(ranges: Sequence[float], angle_min: float, increment: float, ran
         m = (c, -s, s, c)
     else:
         m = tuple(float(v) for v in (rotation[0, 0], rotation[0, 1], rotation[1, 0], rotation[1, 1]))
-    free = np.where(finite & ~bad, r, np.where(np.isposinf(r), float(range_max), 0.0))
+    free = np.where(finite & ~bad, r, np.where(np.isposinf(r), float(range_max),
+                                                np.where(too_close, float(range_min), np.nan)))
     rays = Rays((float(mount[0]), float(mount[1])), m, float(angle_min), float(increment), free)
     return ScanPoints(xy, len(r), int(np.count_nonzero(bad)), int(np.count_nonzero(too_close)), rays)
 

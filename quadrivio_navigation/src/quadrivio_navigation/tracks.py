@@ -32,9 +32,10 @@ own motion (no map, no localization: the guard must not depend on the estimate):
   seen through a gap of the near one shows the sliver the gap lets through, and the laser's
   field of view cuts a thing it passes. None of them can do what only motion does: be where
   an earlier scan saw through, or leave where the scan now sees through. A point lies where
-  a scan saw through when every ray of that scan passing within ``seen_margin`` of it
-  (widened by ``seen_angle`` and one ray) reached ``seen_margin`` beyond it (+inf: to
-  ``range_max``; NaN and -inf: unknown, never through). A track moves only when at least
+  a scan saw through when the rays of that scan passing within ``seen_margin`` of it
+  (widened by ``seen_angle`` and one ray) reached ``seen_margin`` beyond it: none of them
+  stopped short (-inf: at ``range_min``), and at least half of them are known (+inf: to
+  ``range_max``; a NaN ray, the scanner's dropout in rain or dust, says nothing either way). A track moves only when at least
   ``seen_points`` of its cluster's points (at most ``max_points``, evenly picked) lie where
   the scan at the start of its window saw through, or as many of that scan's cluster's
   points lie where the current scan sees through (the detection-and-tracking literature's
@@ -191,11 +192,12 @@ def picks(a: int, b: int, k: int) -> List[int]:
 
 
 def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
-    """How many of the points (odometric frame) lie where ``scan`` saw through: every ray
-    passing within ``seen_margin`` of the point (widened by ``seen_angle`` and one ray)
-    reached ``seen_margin`` beyond it, and all those rays are in the scan (a scan all around
-    wraps). A point a few centimetres off a trunk's silhouette (range noise seen from
-    another side) is not through: the rays beside it hit the trunk."""
+    """How many of the points (odometric frame) lie where ``scan`` saw through: of the rays
+    passing within ``seen_margin`` of the point (widened by ``seen_angle`` and one ray), none
+    stopped short of ``seen_margin`` beyond it and at least half are known (not NaN), and all
+    those rays are in the scan (a scan all around wraps). A point a few centimetres off a
+    trunk's silhouette (range noise seen from another side) is not through: the rays beside
+    it hit the trunk."""
     r_ = scan.rays
     m00, m01, m10, m11 = r_.m
     det = m00 * m11 - m01 * m10
@@ -227,8 +229,17 @@ def seen_through(scan: SeenScan, pts: np.ndarray, p: TrackParams) -> int:
         if (lo < 0 or hi > n - 1) and not full:
             continue
         need = rng + p.seen_margin
-        if all(free[i % n] >= need for i in range(lo, hi + 1)):
-            count += 1
+        known = 0
+        for i in range(lo, hi + 1):
+            f = free[i % n]
+            if f != f:  # NaN: unknown
+                continue
+            if f < need:
+                break
+            known += 1
+        else:
+            if 2 * known >= hi - lo + 1:
+                count += 1
     return count
 
 
