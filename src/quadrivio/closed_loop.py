@@ -44,6 +44,7 @@ import numpy as np
 from quadrivio_config import ConfigError, replace_nested
 
 from .metrics import RunData, Series
+from .obstacle_metrics import map_bodies
 from .offline import GPS_NODE, IMU_NODE, MAG_NODE, _sim_params, localizer_params, sensor_params
 from .scenario import Scenario, _defaults, _section
 from .scenario import vehicle as scenario_vehicle
@@ -635,8 +636,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         guard=_series(rec.guard, ("action", "limit", "free", "protective", "scan_stamp", "direction", "requested",
                                   "zone", "measured", "handlebar_requested", "handlebar_measured")),
         actors=rec.actors,
-        map_bodies=[(f"map_{i}", "map", b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y)
-                    for i, b in enumerate(sim.map_blocks)] if sim.map_blocks else None,
+        map_bodies=map_bodies(sim.map_blocks) if sim.map_blocks else None,
         paths=paths,
         local_marks=np.array(sorted(rec.local_marks)) if rec.local_marks else np.zeros((0, 2)),
         contacts=contacts if (rec.actors or grid is not None) else None,

@@ -93,6 +93,12 @@ OCCUPIED, TREE_SIZE = 65, 1.2
 _BODIES: Dict[int, tuple] = {}  # id(grid or bodies) -> (them, points): one map, many runs and stops
 
 
+def map_bodies(blocks) -> list:
+    """The simulator's :class:`quadrivio_navigation.maps.Block` s as RunData's map_bodies
+    (name, kind, shape, x, y, yaw, length, width), named as on /ground_truth/map_bodies."""
+    return [(f"map_{i}", "map", b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y) for i, b in enumerate(blocks)]
+
+
 def map_points(grid, bodies: Optional[list] = None, occupied: int = OCCUPIED,
                tree_size: float = TREE_SIZE) -> np.ndarray:
     """Points every 5 cm on the outlines of the map's bodies, map frame: ``bodies`` (the
@@ -108,13 +114,11 @@ def map_points(grid, bodies: Optional[list] = None, occupied: int = OCCUPIED,
     cached = _BODIES.get(id(source))
     if cached is not None and cached[0] is source:
         return cached[1]
-    if bodies is not None:
-        pts = [_outline_points(shape, x, y, yaw, length, width) for _, _, shape, x, y, yaw, length, width in bodies]
-    else:
+    if bodies is None:
         from quadrivio_navigation.maps import obstacles_from_grid
 
-        blocks = obstacles_from_grid(grid, occupied, tree_size)
-        pts = [_outline_points(b.kind, b.x, b.y, b.yaw, b.size_x, b.size_y) for b in blocks]
+        bodies = map_bodies(obstacles_from_grid(grid, occupied, tree_size))
+    pts = [_outline_points(shape, x, y, yaw, length, width) for _, _, shape, x, y, yaw, length, width in bodies]
     out = np.concatenate(pts) if pts else np.zeros((0, 2))
     _BODIES.clear()  # one map at a time: a campaign's worker keeps the last
     _BODIES[id(source)] = (source, out)

@@ -5,8 +5,9 @@ both lasers at that moment (their points through the lasers' mounts, in ``base_l
 vehicle's body and the footprint the guard guards (the body grown by its ``padding``), the
 protective and warning fields as the guard swept them, the point it named nearest and, when
 the run has them, the true outlines of the actors and obstacles (simulation) and of the map's
-bodies about the pose (those the simulator built, or those its defaults build from the map). A field is the footprint swept along the arc of the measured
-handlebar turning toward the requested one at the servo's rate (:func:`fields.sweep`), over
+bodies about the pose (those the simulator built, or those its defaults build from the map).
+A field is the footprint swept along the arc of the measured handlebar turning toward the
+requested one at the servo's rate (:func:`fields.sweep`), over
 the status's protective and warning distances: reconstructed from what the status carries
 (the guard publishes the distances and handlebars, not the polygons), so it is the guard's
 field to within its sweep step. Without ``rviz``: this is what a field user looks at to learn
@@ -94,7 +95,8 @@ def off_returns(scene: StopScene) -> Optional[Tuple[float, Tuple[float, float]]]
 def add_world(scene: StopScene, run, radius: float = 20.0) -> StopScene:
     """The run's world about the vehicle at the stop, in its frame: the true outlines of the
     actors and obstacles (only with a ground truth) and the outlines of the map's bodies within
-    ``radius`` (:func:`obstacle_metrics.map_points`), placed by the true pose, or by the estimated one in a recording without it."""
+    ``radius`` (:func:`obstacle_metrics.map_points`), placed by the true pose, or by the
+    estimated one in a recording without it."""
     from .obstacle_metrics import _at, actors_at, map_points
 
     truth = len(run.ground_truth) > 0

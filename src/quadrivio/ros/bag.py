@@ -57,6 +57,11 @@ def _yaw(q) -> float:
     return yaw_from_quaternion(q.x, q.y, q.z, q.w)
 
 
+def _body(a) -> tuple:
+    """A quadrivio_sim/Actor as RunData's actors and map_bodies hold it."""
+    return (a.name, a.kind, a.shape, a.pose.x, a.pose.y, a.pose.theta, a.length, a.width)
+
+
 _series = Series.from_rows
 
 
@@ -153,12 +158,10 @@ def read_run(path: str, site: SiteParams, vehicle: VehicleParams, imap=None, bag
                     grid = _grid(m)
                     continue
                 if kind == "map_bodies":
-                    map_bodies = [(a.name, a.kind, a.shape, a.pose.x, a.pose.y, a.pose.theta, a.length, a.width)
-                                  for a in m.actors]
+                    map_bodies = [_body(a) for a in m.actors]
                     continue
                 if kind == "actors":
-                    actors.append((m.header.stamp.to_sec(), [(a.name, a.kind, a.shape, a.pose.x, a.pose.y,
-                                                              a.pose.theta, a.length, a.width) for a in m.actors]))
+                    actors.append((m.header.stamp.to_sec(), [_body(a) for a in m.actors]))
                     continue
                 if kind == "local":
                     g = _grid(m)

@@ -45,8 +45,9 @@ Parameters (private, see ``config/sim.yaml`` for every key of the simulation its
 Publishes: ``/clock`` (rosgraph_msgs/Clock), ``ground_truth/odom`` (nav_msgs/Odometry),
 ``ground_truth/actors`` (quadrivio_sim/ActorArray: the scenario's actors and obstacles, at
 ``actors_rate``, when it has any), ``ground_truth/map_bodies`` (quadrivio_sim/ActorArray,
-latched: the bodies built from the map's occupied cells, when there is a map), ``ground_truth/contacts`` (quadrivio_sim/Contact: each
-contact of the vehicle with a body that is not the ground, as it begins),
+latched: the bodies built from the map's occupied cells, when there is a map),
+``ground_truth/contacts`` (quadrivio_sim/Contact: each contact of the vehicle with a body
+that is not the ground, as it begins),
 ``joint_states`` (sensor_msgs/JointState), ``/tf``, ``sim/gps`` (quadrivio_sim/RawGps),
 ``sim/imu`` (sensor_msgs/Imu), ``sim/mag`` (sensor_msgs/MagneticField),
 ``sim/scan/front|rear`` (sensor_msgs/LaserScan), ``sim/stereo/left|right/image_raw``
