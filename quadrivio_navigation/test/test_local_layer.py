@@ -10,14 +10,21 @@ from quadrivio_navigation.local_layer import LocalLayer, LocalLayerParams, dem_g
 BEARINGS = np.radians(np.arange(-135.0, 135.01, 1.0))
 
 
+@pytest.fixture(params=[False, True], ids=["numpy", "native"])
+def native(request):
+    """The layer's rays traced in numpy (the reference) and in native code (the default where
+    the workspace is built, as it is for make test)."""
+    return request.param
+
+
 def value_at(layer, x, y):
     row, col, ok = layer.cells(np.array([[x, y]]))
     assert ok[0]
     return int(layer.grid_values()[row[0], col[0]])
 
 
-def test_marks_returns_and_clears_the_rays_to_them():
-    layer = LocalLayer(LocalLayerParams(size=20.0, resolution=0.1, obstacle_range=6.0, raytrace_range=8.0))
+def test_marks_returns_and_clears_the_rays_to_them(native):
+    layer = LocalLayer(LocalLayerParams(size=20.0, resolution=0.1, obstacle_range=6.0, raytrace_range=8.0), native=native)
     ranges = np.full(len(BEARINGS), np.inf)
     ahead = np.abs(BEARINGS) < np.radians(5)
     ranges[ahead] = 5.0 / np.cos(BEARINGS[ahead])  # a wall 5 m ahead, +-0.44 m wide
@@ -28,14 +35,14 @@ def test_marks_returns_and_clears_the_rays_to_them():
     assert value_at(layer, 0.0, 8.5) == -1  # beyond the raytrace range (a sideways ray saw nothing: 8 m)
     assert value_at(layer, 0.0, 7.5) == 0
     # beyond obstacle_range: marks nothing, still clears
-    layer2 = LocalLayer(LocalLayerParams(size=20.0, obstacle_range=4.0, raytrace_range=10.0))
+    layer2 = LocalLayer(LocalLayerParams(size=20.0, obstacle_range=4.0, raytrace_range=10.0), native=native)
     layer2.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, ranges)
     assert not layer2.occupied().any()
     assert value_at(layer2, 4.5, 0.0) == 0
 
 
-def test_a_moved_obstacle_is_cleared_by_the_rays_through_it():
-    layer = LocalLayer(LocalLayerParams(size=20.0, decay=0.0))
+def test_a_moved_obstacle_is_cleared_by_the_rays_through_it(native):
+    layer = LocalLayer(LocalLayerParams(size=20.0, decay=0.0), native=native)
     r = np.full(len(BEARINGS), np.inf)
     i = int(np.argmin(np.abs(BEARINGS)))
     r[i] = 4.0
@@ -45,8 +52,8 @@ def test_a_moved_obstacle_is_cleared_by_the_rays_through_it():
     assert value_at(layer, 4.02, 0.0) == 0
 
 
-def test_marks_decay_when_not_seen_again():
-    layer = LocalLayer(LocalLayerParams(size=20.0, decay=2.0))
+def test_marks_decay_when_not_seen_again(native):
+    layer = LocalLayer(LocalLayerParams(size=20.0, decay=2.0), native=native)
     r = np.full(len(BEARINGS), np.inf)
     r[int(np.argmin(np.abs(BEARINGS)))] = 4.0
     layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
@@ -71,8 +78,8 @@ def test_rolling_keeps_marks_in_place():
     assert not layer.occupied().any()
 
 
-def test_bad_ranges_rep117():
-    layer = LocalLayer(LocalLayerParams(size=20.0))
+def test_bad_ranges_rep117(native):
+    layer = LocalLayer(LocalLayerParams(size=20.0), native=native)
     r = np.full(len(BEARINGS), np.nan)  # every reading invalid: nothing marked, nothing cleared
     layer.add_scan(1.0, (0.0, 0.0, 0.0), BEARINGS, r)
     assert (layer.grid_values() == -1).all()
@@ -81,12 +88,12 @@ def test_bad_ranges_rep117():
     assert value_at(layer, 0.01, 0.01) == 100
 
 
-def test_returns_on_the_dem_are_ground_not_obstacles():
+def test_returns_on_the_dem_are_ground_not_obstacles(native):
     # terrain rising ahead at 15 %; a level scanner 0.55 m up meets it at ~3.7 m
     def heights(x, y):
         return 0.15 * np.maximum(np.asarray(x), 0.0)
 
-    layer = LocalLayer(LocalLayerParams(size=20.0))
+    layer = LocalLayer(LocalLayerParams(size=20.0), native=native)
     ranges = np.full(len(BEARINGS), np.inf)
     front = np.abs(BEARINGS) < np.radians(30)
     ranges[front] = 0.55 / 0.15 / np.cos(BEARINGS[front])
@@ -98,6 +105,49 @@ def test_returns_on_the_dem_are_ground_not_obstacles():
     ranges[135] = 2.0
     layer.add_scan(2.0, (0.0, 0.0, 0.0), BEARINGS, ranges, ground=ground)
     assert value_at(layer, 2.02, 0.0) == 100
+
+
+def _same_grids(a: LocalLayer, b: LocalLayer, what: str) -> None:
+    assert a.origin == b.origin, what
+    assert np.array_equal(a.stamp, b.stamp, equal_nan=True), what
+    assert np.array_equal(a.seen, b.seen), what
+    assert a.ground_returns == b.ground_returns, what
+
+
+def test_the_native_trace_marks_and_clears_as_the_python_one():
+    """Random scans through both: grids of several sizes and resolutions (0.3 m does not
+    divide the ranges), scanners anywhere (outside the grid too), headings, fields of view and
+    angular steps unlike ours, REP 117's NaN and +-inf, returns past both ranges, a sloped DEM
+    taking some returns for the ground, and the grid rolling between scans: the same cells,
+    bit for bit."""
+    rng = np.random.default_rng(7)
+    for case in range(60):
+        p = LocalLayerParams(size=float(rng.choice([6.0, 12.5, 24.0])), resolution=float(rng.choice([0.05, 0.1, 0.3])),
+                             obstacle_range=float(rng.uniform(1.0, 12.0)), raytrace_range=float(rng.uniform(1.0, 15.0)),
+                             decay=float(rng.choice([0.0, 2.0])))
+        ref, nat = LocalLayer(p, native=False), LocalLayer(p, native=True)
+        n_rays = int(rng.integers(1, 1100))
+        fov = float(rng.uniform(0.1, 2.0 * math.pi))
+        bearings = -0.5 * fov + fov * np.arange(n_rays) / max(1, n_rays - 1)
+        if rng.random() < 0.3:
+            bearings = -bearings  # a scanner turning the other way
+        slope = float(rng.uniform(-0.2, 0.2))
+        x, y = rng.uniform(-5.0, 5.0, 2)
+        for k in range(4):
+            x, y = x + rng.normal(0.0, 2.0), y + rng.normal(0.0, 2.0)
+            sensor = (x, y, float(rng.uniform(-math.pi, math.pi)))
+            r = rng.uniform(-0.5, 20.0, n_rays)
+            u = rng.random(n_rays)
+            r[u < 0.1] = np.nan
+            r[(u >= 0.1) & (u < 0.25)] = np.inf
+            r[(u >= 0.25) & (u < 0.3)] = -np.inf
+            ground = None
+            if rng.random() < 0.5:
+                ground = dem_ground(lambda gx, gy: slope * np.asarray(gx), (x, y, 0.55), np.eye(3), 0.15)
+            for layer in (ref, nat):
+                layer.add_scan(float(k), sensor, bearings, r, ground)
+            _same_grids(ref, nat, f"case {case}, scan {k}")
+        assert ref.seen.any() or not np.isfinite(ref.stamp).any()
 
 
 def test_update_cost_is_small():
