@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from quadrivio.metrics import RunData, Series
-from quadrivio.obstacle_metrics import min_clearance, obstacle_metrics, rectangle_distance
+from quadrivio.obstacle_metrics import map_points, min_clearance, obstacle_metrics, rectangle_distance
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_navigation.costmap import Footprint
 
@@ -70,6 +70,36 @@ def test_the_simulators_own_map_bodies_replace_the_defaults():
     tree = [("map_0", "map", "cylinder", 4.0, 3.0, 0.0, 3.0, 3.0)]
     assert min_clearance(gt, FP, [], grid, bodies=tree) == pytest.approx(2.5 - FP.front, abs=0.06)
     assert min_clearance(gt, FP, [], None, bodies=tree) == pytest.approx(2.5 - FP.front, abs=0.06)
+
+
+def test_min_clearance_is_the_least_of_every_poses_distance_to_the_bodies_in_reach():
+    """min_clearance (a k-d tree's points in reach of each pose) against every point's
+    distance, on random bodies and winding tracks, two strides, and tracks that pass out of
+    reach of everything."""
+    rng = np.random.default_rng(3)
+    for case in range(40):
+        n_bodies = int(rng.integers(1, 60))
+        bodies = [(f"b{k}", "map", str(rng.choice(["cylinder", "box"])), *rng.uniform(-20.0, 20.0, 2),
+                   float(rng.uniform(-math.pi, math.pi)), *rng.uniform(0.2, 3.0, 2)) for k in range(n_bodies)]
+        t = np.arange(0.0, 30.0, 0.05)
+        yaw = np.cumsum(rng.normal(0.0, 0.05, len(t))) + rng.uniform(-math.pi, math.pi)
+        speed = rng.uniform(0.5, 3.0)
+        x = np.cumsum(speed * 0.05 * np.cos(yaw)) + rng.uniform(-25.0, 25.0)
+        y = np.cumsum(speed * 0.05 * np.sin(yaw)) + rng.uniform(-25.0, 25.0)
+        gt = Series(t, {"x": x, "y": y, "yaw": yaw, "vx": np.full_like(t, speed), "wz": np.zeros_like(t)})
+        stride = int(rng.choice([1, 3]))
+        pts = map_points(None, bodies)
+        reach = FP.circumscribed_radius + 3.0
+        near = []  # every pose's distance to the points within reach of it
+        for i in range(0, len(t), stride):
+            close = np.hypot(pts[:, 0] - x[i], pts[:, 1] - y[i]) <= reach
+            if close.any():
+                near.append(float(rectangle_distance(FP, x[i], y[i], yaw[i], pts[close]).min()))
+        got = min_clearance(gt, FP, [], None, stride=stride, bodies=bodies)
+        if near:
+            assert got == pytest.approx(min(near), rel=1e-12, abs=1e-12), case
+        else:
+            assert got is None, case
 
 
 def test_protective_stops_judged_by_the_ground_truth():
