@@ -142,9 +142,10 @@ class _LostClient:
         raise OSError("the workers are gone")
 
 
-def test_the_workers_draw_the_same_plots_and_a_lost_cluster_leaves_them_to_this_process(dog_campaign, tmp_path):
-    """With a client each plot is a task (pure: its inputs read here, PNG bytes back); if the
-    cluster fails, this process draws them all the same."""
+def test_a_client_draws_the_same_plots_and_a_lost_one_leaves_them_to_this_process(dog_campaign, tmp_path):
+    """With a client (the campaign's Plotter, or a Dask client) each plot is a task (pure: its
+    inputs read here, PNG bytes back); if the client fails, this process draws them all the
+    same."""
     out, fig, written = dog_campaign
     scenario = load_scenario(str(out.parent / "dog_short.yaml"))
     rows, meta = campaign.table([fig], ["dog_short"]), {"mode": "closed loop", "seeds": [0]}
@@ -158,3 +159,16 @@ def test_the_workers_draw_the_same_plots_and_a_lost_cluster_leaves_them_to_this_
         for name in names:
             assert (there / name).read_bytes() == (out / name).read_bytes(), name
     assert inline.submitted == ["summary", "errors", "tracks"]  # every plot a task
+    # a scenario whose runs ended first has its plots drawing already: they are not drawn
+    # again, and the files come in the same order
+    early_client = _InlineClient()
+    early = {"dog_short": [(job, early_client.submit(job[1], *job[2]))
+                           for job in campaign.scenario_plot_jobs(str(out), scenario, [0])]}
+    there = tmp_path / "early"
+    os.makedirs(there / "runs")
+    os.link(out / "runs" / "dog_short_s0.npz", there / "runs" / "dog_short_s0.npz")
+    names = campaign.write_plots(str(there), [scenario], [0], rows, [fig], meta, client=early_client, early=early)
+    assert names == written
+    assert early_client.submitted == ["errors", "tracks", "summary"]
+    for name in names:
+        assert (there / name).read_bytes() == (out / name).read_bytes(), name

@@ -271,50 +271,95 @@ def _series(out: str, name: str, seeds: List[int]) -> List:
     return series
 
 
-def plot_jobs(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict) -> List:
-    """The campaign's plots as (file name, function, arguments): each function is pure
-    (campaign_plots) and returns the PNG's bytes or None, so that a cluster's workers can
-    draw them side by side; their inputs are read here, where the runs' files are."""
+def scenario_plot_jobs(out: str, s, seeds: List[int]) -> List:
+    """One scenario's plots (its errors, and its tracks on its map) as (file name, function,
+    arguments), :func:`plot_jobs`' way; their inputs are its runs' files, read here."""
     from . import campaign_plots
     from .scenario import map_file
 
-    jobs = [("campaign.png", campaign_plots.summary,
-             (rows, runs, COLUMNS, f"{meta['mode']} campaign, seeds {meta['seeds']}"))]
-    for s in scenarios:
-        series = _series(out, s.name, seeds)
-        jobs.append((f"{s.name}_errors.png", campaign_plots.errors, (s.name, series)))
-        grid, file = None, map_file(s)
-        if file:
-            from quadrivio_navigation.maps import load_map
+    series = _series(out, s.name, seeds)
+    jobs = [(f"{s.name}_errors.png", campaign_plots.errors, (s.name, series))]
+    grid, file = None, map_file(s)
+    if file:
+        from quadrivio_navigation.maps import load_map
 
-            grid = load_map(file)
-        spec = s.data.get("path") or {}
-        goal = spec.get("goal") if isinstance(spec, dict) and spec.get("kind") == "goal" else None
-        jobs.append((f"{s.name}_tracks.png", campaign_plots.tracks, (s.name, series, grid, goal)))
+        grid = load_map(file)
+    spec = s.data.get("path") or {}
+    goal = spec.get("goal") if isinstance(spec, dict) and spec.get("kind") == "goal" else None
+    jobs.append((f"{s.name}_tracks.png", campaign_plots.tracks, (s.name, series, grid, goal)))
+    return jobs
+
+
+def plot_jobs(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict,
+              early: Optional[Dict[str, List]] = None) -> List:
+    """The campaign's plots as ((file name, function, arguments), future or None), in the
+    order of the files: each function is pure (campaign_plots) and returns the PNG's bytes or
+    None, so that a cluster's workers can draw them side by side; their inputs are read here,
+    where the runs' files are. ``early``: a scenario's jobs with their futures, submitted
+    before (:func:`_run_jobs`)."""
+    from . import campaign_plots
+
+    early = early or {}
+    jobs = [(("campaign.png", campaign_plots.summary,
+              (rows, runs, COLUMNS, f"{meta['mode']} campaign, seeds {meta['seeds']}")), None)]
+    for s in scenarios:
+        jobs += early[s.name] if s.name in early else [(job, None) for job in scenario_plot_jobs(out, s, seeds)]
     return jobs
 
 
 def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict,
-                client=None) -> List[str]:
+                client=None, early: Optional[Dict[str, List]] = None) -> List[str]:
     """campaign.png (the table), and per scenario its errors and, closed loop, its tracks on
     its map; the names of the files written. With a Dask ``client`` its workers draw them,
-    side by side (the table's plot is 0.4 s of CPU, a scenario's 0.1 s, matplotlib's import
-    0.2 s); without one, or if that fails, this process does."""
-    jobs = plot_jobs(out, scenarios, seeds, rows, runs, meta)
+    side by side (the table's plot is 0.3 s of CPU, a scenario's 0.15 s, matplotlib's import
+    0.3 s); without one, or if that fails, this process does. ``early``: per scenario, its
+    jobs (:func:`scenario_plot_jobs`) with the futures of those submitted as its last run
+    ended, while the other runs went on (:func:`_run_jobs`)."""
+    jobs = plot_jobs(out, scenarios, seeds, rows, runs, meta, early)
     pngs = None
     if client is not None:
         try:
-            pngs = client.gather([client.submit(fn, *args, pure=False) for _, fn, args in jobs])
+            futures = [fut if fut is not None else client.submit(fn, *args, pure=False)
+                       for (_, fn, args), fut in jobs]
+            pngs = client.gather(futures)
         except Exception as exc:  # a worker lost, say: draw them here
             _log(f"the workers could not draw the plots ({type(exc).__name__}: {exc}); drawing them here")
     if pngs is None:
-        pngs = [fn(*args) for _, fn, args in jobs]
+        pngs = [fn(*args) for (_, fn, args), _ in jobs]
     written = []
-    for (name, _, _), png in zip(jobs, pngs):
+    for ((name, _, _), _), png in zip(jobs, pngs):
         if png is not None:
             atomic_write(os.path.join(out, name), png)
             written.append(name)
     return written
+
+
+class Plotter:
+    """One thread of this process drawing the campaign's plots, a client for
+    :func:`write_plots` (``submit``, ``gather``): matplotlib is imported by it as the runs
+    start, and a scenario's plots are drawn as its last run ends, while the workers run the
+    others; at the end only the table's plot and the last scenario's are left, drawn while the
+    cluster closes. On this machine's two cores that made a four-run campaign 0.3-0.4 s
+    shorter than the workers drawing everything once the runs were done (bench/HISTORY.md).
+    One thread: matplotlib's figures are not for threads side by side."""
+
+    def __init__(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        from . import campaign_plots
+
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-plots")
+        self._pool.submit(campaign_plots._plt)  # the import, once, while the runs go
+
+    def submit(self, fn, *args, pure: bool = False):
+        return self._pool.submit(fn, *args)
+
+    @staticmethod
+    def gather(futures) -> List:
+        return [f.result() for f in futures]
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 # ------------------------------------------------------------------- main
@@ -363,14 +408,18 @@ def _log(text: str) -> None:
 
 
 def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failures: List[str],
-              wall0: float) -> float:
+              wall0: float, scenario_done=None) -> float:
     """The runs of ``jobs`` ((scenario, seed, digest)) as tasks of ``client``; each finished
     run is written to ``runs/`` and appended to ``runs``, each failed one to ``failures``;
-    progress in seconds since ``wall0`` (monotonic). The simulated seconds of the runs made."""
+    progress in seconds since ``wall0`` (monotonic); ``scenario_done(scenario)`` as the last
+    of a scenario's runs ends. The simulated seconds of the runs made."""
     from distributed import as_completed
 
     new_sim = 0.0
     futures = {}
+    left: Dict[str, int] = {}
+    for s, _, _ in jobs:
+        left[s.name] = left.get(s.name, 0) + 1
     for s, seed, digest in jobs:
         if args.closed_loop and not args.ros:
             fut = client.submit(run_in_process, s.path, seed, os.path.abspath(args.out), args.settle,
@@ -383,6 +432,9 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
         futures[fut] = (s, seed, digest)
     for fut in as_completed(futures):
         s, seed, digest = futures[fut]
+        left[s.name] -= 1
+        if left[s.name] == 0 and scenario_done is not None:
+            scenario_done(s)
         try:
             fig = fut.result()
         except Exception as exc:  # one failed run is reported; the others go on
@@ -418,6 +470,27 @@ def _start_cluster(args):
     starting = pool.submit(local_cluster, workers)
     pool.shutdown(wait=False)  # the thread ends with its one task
     return starting
+
+
+def _close_in_background(client, cluster, starting):
+    """A thread closing ``client`` and ``cluster`` (or the cluster still ``starting``, not
+    used), started; join it."""
+    import threading
+
+    def close() -> None:
+        try:
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+            else:
+                _close_started(starting)
+        except Exception as exc:  # the campaign's files are written all the same
+            _log(f"closing the cluster: {type(exc).__name__}: {exc}")
+
+    thread = threading.Thread(target=close, name="campaign-close")
+    thread.start()
+    return thread
 
 
 def _close_started(starting) -> None:
@@ -466,9 +539,9 @@ def main(argv=None) -> int:
     _log(f"{len(scenarios)} scenario(s) x {len(seeds)} seed(s), {mode}: {len(jobs)} to run"
          + (f", {len(runs)} already done in {args.out}" if runs else ""))
     failures = []
-    client = cluster = None
+    client = cluster = plotter = closing = None
     try:
-        if starting is not None:  # started for the runs; with none left to run, it draws the plots
+        if jobs and starting is not None:
             from distributed import Client
 
             cluster = starting.result()
@@ -482,9 +555,18 @@ def main(argv=None) -> int:
                 print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
                       f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
                 return 2
+        plotter = Plotter()
+        early: Dict[str, List] = {}  # a scenario's plots, drawn while the other scenarios' runs go on
+
+        def scenario_done(s) -> None:
+            try:
+                early[s.name] = [(job, plotter.submit(job[1], *job[2])) for job in scenario_plot_jobs(args.out, s, seeds)]
+            except Exception as exc:  # its runs' files unreadable, say: drawn (or reported) at the end
+                _log(f"{s.name}'s plots wait for the end ({type(exc).__name__}: {exc})")
+
         if jobs:
             wall0 = time.monotonic()
-            new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures, wall0)
+            new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures, wall0, scenario_done)
         runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
         rows = table(runs, names)
         meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios},
@@ -495,17 +577,24 @@ def main(argv=None) -> int:
             if args.closed_loop and new_sim:
                 _log(f"{new_sim:.0f} simulated s in {wall:.0f} wall s: {new_sim / wall:.1f} simulated s per wall s")
         write_tables(args.out, rows, runs, meta)
-        plots = write_plots(args.out, scenarios, seeds, rows, runs, meta, client=client)
+        # the cluster closes (a third of a second) while the last plots are drawn
+        closing = _close_in_background(client, cluster, starting)
+        client = cluster = starting = None
+        plots = write_plots(args.out, scenarios, seeds, rows, runs, meta, client=plotter, early=early)
     except KeyboardInterrupt:
         _log("interrupted: the finished runs are kept; run the same command to resume")
         return 130
     finally:
+        if plotter is not None:
+            plotter.close()
         if client is not None:
             client.close()
         if cluster is not None:
             cluster.close()
-        elif starting is not None:  # interrupted before it was used
+        elif starting is not None:  # not used, or interrupted before it was
             _close_started(starting)
+        if closing is not None:
+            closing.join()
     _log(f"wrote {os.path.join(args.out, 'campaign.md')} (and .csv, .json" +
          (f"; plots {', '.join(plots)}" if plots else "") + ")")
     with open(os.path.join(args.out, "campaign.md")) as f:
