@@ -161,7 +161,18 @@ class MagSensor:
 
 
 class LaserSensor:
-    """A planar scanner in the x-y plane of its frame, rays from ``-fov/2`` to ``+fov/2``."""
+    """A planar scanner in the x-y plane of its frame, rays from ``-fov/2`` to ``+fov/2``.
+
+    Bullet walks a ray's whole length through a mesh's bounding-volume tree, however near its
+    first hit. So a ray whose last return lay within ``NEAR`` of its span is cast that far
+    first, and on from there only if it hit nothing: among the orchard's trees, where most
+    rays return within a few metres, a scan costs a third less (0.55 against 0.83 ms for 271
+    rays), and in the open it is cast whole, as before. The ranges are those of the whole
+    ray's cast but for Bullet's single-precision rounding: micrometres, a few millimetres
+    where a ray grazes rough ground (``test_sim_core.py``)."""
+
+    NEAR = 1.0 / 3.0  # of the span: a ray that returned within this is cast this far first
+    OVERLAP = 1e-6  # of the span: the second part starts this much before the first ended
 
     def __init__(self, world: World, p: LaserParams, frame: str) -> None:
         self.world, self.p, self.frame = world, p, frame
@@ -172,12 +183,34 @@ class LaserSensor:
         self.starts = p.range_min * dirs  # in the scanner frame
         self.ends = p.range_max * dirs
         self.span = p.range_max - p.range_min
+        self._near = np.zeros(p.samples, dtype=bool)  # the last scan's returns within NEAR
+
+    def cast(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """The hit fraction of each ray from ``starts`` to ``ends`` (world frame; 1.0: no hit),
+        the rays that returned near in the last scan cast in two parts."""
+        near = self._near
+        if not near.any():
+            frac = np.asarray(self.world.ray_batch(starts, ends))
+        else:
+            # Arrays go to Bullet as they are: converting 2 x 271 x 3 to lists cost 30 % of a batch.
+            d = ends - starts
+            frac = np.asarray(self.world.ray_batch(starts, np.where(near[:, None], starts + self.NEAR * d, ends)))
+            miss = near & (frac >= 1.0)
+            frac = np.where(near & ~miss, self.NEAR * frac, frac)
+            if miss.any():
+                # on from just before the first part's end: a surface exactly at its end, which
+                # neither part's cast would report, is met by the second part (Bullet reports a
+                # crossing strictly inside a ray)
+                c = self.NEAR - self.OVERLAP
+                rest = np.asarray(self.world.ray_batch(starts[miss] + c * d[miss], ends[miss]))
+                frac[miss] = np.where(rest >= 1.0, 1.0, c + (1.0 - c) * rest)
+        self._near = frac < self.NEAR
+        return frac
 
     def sample(self, t: float) -> ScanSample:
         pos, orn, _, _ = self.world.link_state(self.frame)
         R = quat_to_matrix(orn)
-        # Arrays go to Bullet as they are: converting 2 x 271 x 3 to lists cost 30 % of a batch.
-        frac = np.asarray(self.world.ray_batch(self.starts @ R.T + pos, self.ends @ R.T + pos))
+        frac = self.cast(self.starts @ R.T + pos, self.ends @ R.T + pos)
         ranges = tuple(np.where(frac >= 1.0, math.inf, self.p.range_min + frac * self.span).tolist())
         return ScanSample(t, self.frame, self.angle_min, self.increment, ranges,
                           self.p.range_min, self.p.range_max, 1.0 / self.p.rate)
