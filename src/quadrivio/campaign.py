@@ -310,9 +310,10 @@ def plot_jobs(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: Lis
 def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: List[Dict], meta: Dict,
                 client=None, early: Optional[Dict[str, List]] = None) -> List[str]:
     """campaign.png (the table), and per scenario its errors and, closed loop, its tracks on
-    its map; the names of the files written. With a Dask ``client`` its workers draw them,
-    side by side (the table's plot is 0.3 s of CPU, a scenario's 0.15 s, matplotlib's import
-    0.3 s); without one, or if that fails, this process does. ``early``: per scenario, its
+    its map; the names of the files written. With a ``client`` (the campaign's
+    :class:`Plotter`, or Dask's) it draws them (the table's plot is 0.3 s of CPU, a
+    scenario's 0.15 s, matplotlib's import 0.3 s); without one, or if that fails, this
+    process's own thread does. ``early``: per scenario, its
     jobs (:func:`scenario_plot_jobs`) with the futures of those submitted as its last run
     ended, while the other runs went on (:func:`_run_jobs`)."""
     jobs = plot_jobs(out, scenarios, seeds, rows, runs, meta, early)
@@ -323,7 +324,7 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
                        for (_, fn, args), fut in jobs]
             pngs = client.gather(futures)
         except Exception as exc:  # a worker lost, say: draw them here
-            _log(f"the workers could not draw the plots ({type(exc).__name__}: {exc}); drawing them here")
+            _log(f"the plots' tasks failed ({type(exc).__name__}: {exc}); drawing them here")
     if pngs is None:
         pngs = [fn(*args) for (_, fn, args), _ in jobs]
     written = []
