@@ -69,8 +69,9 @@ COLUMNS = (("rmse_m", "RMSE", "m"), ("gps_rmse_m", "GPS RMSE", "m"), ("ratio_to_
 
 
 SCHEDULER_TIMEOUT = 10.0  # [s] to connect to --scheduler
-# What every run imports (PyBullet, GTSAM, the planner's native core): a local worker imports
-# them as it starts, while this process still reads the scenarios, not in its first run.
+# What every run imports (PyBullet, GTSAM, the planner's native core): the local cluster's fork
+# server imports them once as it starts, while this process still reads the scenarios, not each
+# worker in its first run; a remote worker imports them as it starts (docs/campaigns.md).
 WORKER_PRELOAD = ("quadrivio.campaign", "quadrivio_sim.simulator", "quadrivio_localization.smoother",
                   "quadrivio_navigation.planning")
 
@@ -94,15 +95,31 @@ def local_cluster(workers: int):
     is not served here, a tenth of a closed-loop run's CPU (bench/HISTORY.md). The scheduler's
     HTTP server (its health and metrics routes: Dask binds one even without a dashboard) on a
     free loopback port: on Dask's default, 8787 on every interface, a second campaign on the
-    machine warned "Port 8787 is already in use", and the first answered the network."""
-    import dask
-    from distributed import LocalCluster
+    machine warned "Port 8787 is already in use", and the first answered the network.
+
+    The workers are forked by a fork server that imports Dask and what every run imports
+    once (:data:`WORKER_PRELOAD`), not each started afresh to import them itself: 0.3-0.5 s
+    less for a four-run campaign on this machine's two cores (bench/HISTORY.md). The server
+    is a process of its own with no thread, so its forks are safe, where forking this
+    process (Dask's threads) hung campaigns."""
+    import multiprocessing
+    import multiprocessing.forkserver
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     # The workers' Dask loggers from warnings up, from their start: silence_logs comes later
     # than their preloads' INFO lines (what the worker's environment says, it reads at import).
     os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
-    with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers start with it
+    multiprocessing.get_context("forkserver").set_forkserver_preload(["distributed", *WORKER_PRELOAD])
+    multiprocessing.forkserver.ensure_running()  # its imports while this process imports Dask's
+    import dask
+    import distributed.utils
+    from distributed import LocalCluster
+
+    # Dask would set its own list (and import every optional package it knows here first,
+    # pandas among them) unless told that the fork server's list is set.
+    distributed.utils._forkserver_preload_set = True
+    with dask.config.set({"distributed.worker.profile.enabled": False,  # the workers start with it
+                          "distributed.worker.multiprocessing-method": "forkserver"}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                             silence_logs=40, preload=list(WORKER_PRELOAD))
 
@@ -337,19 +354,24 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
 
 class Plotter:
     """One thread of this process drawing the campaign's plots, a client for
-    :func:`write_plots` (``submit``, ``gather``): matplotlib is imported by it as the runs
-    start, and a scenario's plots are drawn as its last run ends, while the workers run the
-    others; at the end only the table's plot and the last scenario's are left, drawn while the
+    :func:`write_plots` (``submit``, ``gather``): matplotlib is imported by it once the runs
+    are submitted (``start``: imported before, it held the interpreter while four runs were
+    submitted, 0.25 s for what takes 0.02), and a scenario's plots are drawn as its last run
+    ends, while the workers run the others; at the end only the table's plot and the last scenario's are left, drawn while the
     cluster closes. On this machine's two cores that made a four-run campaign 0.3-0.4 s
     shorter than the workers drawing everything once the runs were done (bench/HISTORY.md).
     One thread: matplotlib's figures are not for threads side by side."""
 
-    def __init__(self) -> None:
+    def __init__(self, start: bool = True) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-plots")
+        if start:
+            self.start()
+
+    def start(self) -> None:
         from . import campaign_plots
 
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-plots")
         self._pool.submit(campaign_plots._plt)  # the import, once, while the runs go
 
     def submit(self, fn, *args, pure: bool = False):
@@ -409,11 +431,12 @@ def _log(text: str) -> None:
 
 
 def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failures: List[str],
-              wall0: float, scenario_done=None) -> float:
+              wall0: float, scenario_done=None, submitted=None) -> float:
     """The runs of ``jobs`` ((scenario, seed, digest)) as tasks of ``client``; each finished
     run is written to ``runs/`` and appended to ``runs``, each failed one to ``failures``;
-    progress in seconds since ``wall0`` (monotonic); ``scenario_done(scenario)`` as the last
-    of a scenario's runs ends. The simulated seconds of the runs made."""
+    progress in seconds since ``wall0`` (monotonic); ``submitted()`` once every run is
+    submitted, ``scenario_done(scenario)`` as the last of a scenario's runs ends. The
+    simulated seconds of the runs made."""
     from distributed import as_completed
 
     new_sim = 0.0
@@ -431,6 +454,8 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
         else:
             fut = client.submit(run_offline, s.path, seed, os.path.abspath(args.out), args.settle, pure=False)
         futures[fut] = (s, seed, digest)
+    if submitted is not None:
+        submitted()
     for fut in as_completed(futures):
         s, seed, digest = futures[fut]
         left[s.name] -= 1
@@ -556,7 +581,7 @@ def main(argv=None) -> int:
                 print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
                       f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
                 return 2
-        plotter = Plotter()
+        plotter = Plotter(start=False)
         early: Dict[str, List] = {}  # a scenario's plots, drawn while the other scenarios' runs go on
 
         def scenario_done(s) -> None:
@@ -567,7 +592,7 @@ def main(argv=None) -> int:
 
         if jobs:
             wall0 = time.monotonic()
-            new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures, wall0, scenario_done)
+            new_sim = _run_jobs(client, jobs, args, mode, runs, total, failures, wall0, scenario_done, plotter.start)
         runs.sort(key=lambda r: (names.index(r["scenario"]), r["seed"]))
         rows = table(runs, names)
         meta = {"mode": mode, "seeds": seeds, "scenarios": {s.name: s.path for s in scenarios},
