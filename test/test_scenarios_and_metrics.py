@@ -243,12 +243,13 @@ def test_a_replanned_route_counts_each_path_up_to_where_the_next_took_over():
 
 
 def _collisions_by_every_pose(gt, grid, fp, lethal=65):
-    """collision_events' definition, every ground-truth pose tested cell by cell."""
+    """collision_events' definition, every ground-truth pose tested cell by cell: the
+    events, and whether each pose touched."""
     from quadrivio_navigation.costmap import footprint_cells
 
     occupied = grid.data >= lethal
     h, w = occupied.shape
-    events, inside = 0, False
+    events, inside, hits = 0, False, []
     for x, y, yaw in zip(gt["x"], gt["y"], gt["yaw"]):
         gx, gy, gth = grid.to_grid_frame(float(x), float(y), float(yaw))
         rows, cols = footprint_cells(fp, gx, gy, gth, grid.resolution)
@@ -256,7 +257,8 @@ def _collisions_by_every_pose(gt, grid, fp, lethal=65):
         hit = bool(occupied[rows[keep], cols[keep]].any())
         events += hit and not inside
         inside = hit
-    return events
+        hits.append(hit)
+    return events, np.array(hits)
 
 
 def _cross_track_point_by_point(gt, path):
@@ -273,9 +275,9 @@ def _cross_track_point_by_point(gt, path):
 def test_collisions_and_cross_track_match_the_pose_by_pose_definitions(seed):
     """collision_events skips the poses the distance transform puts out of reach of every
     occupied cell, and cross_track takes the points in blocks: both give exactly what testing
-    every pose gives, on random maps (rotated origins, some poses off the map, posts the
-    footprint grazes and walls it crosses)."""
-    from quadrivio.metrics import collision_events, cross_track
+    every pose gives, pose by pose, on random maps (rotated origins, some poses off the map,
+    posts the footprint grazes and walls it crosses)."""
+    from quadrivio.metrics import collision_events, cross_track, touching
     from quadrivio_navigation.costmap import Footprint
     from quadrivio_navigation.maps import OccupancyGrid
 
@@ -298,8 +300,10 @@ def test_collisions_and_cross_track_match_the_pose_by_pose_definitions(seed):
     yaw = np.unwrap(np.arctan2(np.gradient(y), np.gradient(x)))
     gt = Series(t, {"x": x, "y": y, "yaw": yaw, "vx": np.ones_like(t), "wz": np.zeros_like(t)})
     fp = Footprint(front=float(rng.uniform(1.5, 2.5)), rear=0.4, left=0.6, right=float(rng.uniform(0.5, 0.8)))
-    expected = _collisions_by_every_pose(gt, grid, fp)
+    expected, hits = _collisions_by_every_pose(gt, grid, fp)
     assert collision_events(gt, grid, fp) == expected
+    assert np.array_equal(touching(gt, grid, fp), hits)
+    assert hits.any() and not hits.all()
     assert expected > 0 or seed % 2 == 0  # the wall is entered
     empty = OccupancyGrid(np.zeros((n, n), np.int8), res, origin)
     assert collision_events(gt, empty, fp) == 0

@@ -136,6 +136,9 @@ def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> n
     return np.hypot(du, dw)
 
 
+COVER = 4  # discs covering the footprint for min_clearance's bound
+
+
 def min_clearance(gt, fp, actors, grid, stride: int = 1, bodies: Optional[list] = None) -> Optional[float]:
     """The smallest footprint-to-body distance over the ground truth [m] (None: no bodies)."""
     fixed = map_points(grid, bodies)  # on the bodies' outlines
@@ -143,21 +146,41 @@ def min_clearance(gt, fp, actors, grid, stride: int = 1, bodies: Optional[list] 
         return None
     reach = fp.circumscribed_radius + 3.0
     best = math.inf
-    tree = None
-    if len(fixed):
-        from scipy.spatial import cKDTree
-
-        tree = cKDTree(fixed)
-    for i in range(0, len(gt), stride):
-        x, y, yaw, t = float(gt["x"][i]), float(gt["y"][i]), float(gt["yaw"][i]), float(gt.t[i])
-        if tree is not None:
-            near = tree.query_ball_point((x, y), reach)
-            if near:
-                best = min(best, float(rectangle_distance(fp, x, y, yaw, fixed[near]).min()))
-        if actors:
+    idx = range(0, len(gt), stride)
+    if actors:
+        for i in idx:
+            x, y, yaw, t = float(gt["x"][i]), float(gt["y"][i]), float(gt["yaw"][i]), float(gt.t[i])
             pts = actors_at(actors, t)
             if len(pts):
                 best = min(best, float(rectangle_distance(fp, x, y, yaw, pts).min()))
+    if len(fixed):
+        # The poses nearest the bodies first, each against the points that could beat the
+        # best so far. No footprint point is nearer a body than a body is to the nearest of
+        # COVER discs (centres along the footprint, each covering its part) less their
+        # radius: once that bound reaches the best distance found, no pose left can beat it;
+        # and no point farther than the best plus the circumscribed radius from base_link
+        # can. The same minimum as every pose against every point in reach (the test), for a
+        # fraction of the poses and points: an orchard run 0.13 s -> 0.03 s.
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(fixed)
+        xs, ys, yaws = (np.asarray(gt[k], float)[idx.start:idx.stop:idx.step] for k in ("x", "y", "yaw"))
+        c, s_ = np.cos(yaws), np.sin(yaws)
+        half = 0.5 * (fp.front + fp.rear) / COVER
+        disc = math.hypot(half, 0.5 * (fp.left + fp.right))
+        across = 0.5 * (fp.left - fp.right)
+        bound = np.full(len(xs), math.inf)
+        for k in range(COVER):
+            along = -fp.rear + (2 * k + 1) * half
+            d, _ = tree.query(np.column_stack([xs + c * along - s_ * across, ys + s_ * along + c * across]))
+            bound = np.minimum(bound, d - disc)
+        for j in np.argsort(bound, kind="stable"):
+            if not bound[j] < best:
+                break  # sorted: no pose left can beat it
+            x, y, yaw = float(xs[j]), float(ys[j]), float(yaws[j])
+            near = tree.query_ball_point((x, y), min(reach, best + fp.circumscribed_radius))
+            if near:
+                best = min(best, float(rectangle_distance(fp, x, y, yaw, fixed[near]).min()))
     return best if math.isfinite(best) else None
 
 
