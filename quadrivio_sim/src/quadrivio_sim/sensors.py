@@ -185,6 +185,10 @@ class LaserSensor:
         self.span = p.range_max - p.range_min
         self._near = np.zeros(p.samples, dtype=bool)  # the last scan's returns within NEAR
 
+    def reset(self) -> None:
+        """Forget the last scan: a run after a reset casts as a fresh simulator's does."""
+        self._near = np.zeros(self.p.samples, dtype=bool)
+
     def cast(self, starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
         """The hit fraction of each ray from ``starts`` to ``ends`` (world frame; 1.0: no hit),
         the rays that returned near in the last scan cast in two parts."""

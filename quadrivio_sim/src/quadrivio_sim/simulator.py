@@ -224,6 +224,8 @@ class Simulator:
         self._move_actors()
         self.plc.reset(0.0)
         self.imu.reset()
+        for laser in self.lasers:
+            laser.reset()
         self._plc_link_start()
 
     def step(self) -> List[Tuple[str, object]]:
