@@ -144,7 +144,9 @@ def test_an_unreachable_scheduler_is_named(tmp_path, capsys, monkeypatch):
 def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
     """campaign's workers: one BLAS thread and no statistical profiler (8-15 % of a run's CPU
     for a dashboard that is not served); forked by the fork server, which imported the stack
-    once, not started by this process to import it each. Two campaigns on one machine: each scheduler's HTTP
+    once, not started by this process to import it each; Ctrl-C left to the campaign, which
+    closes the cluster (a worker that took it printed Dask's tracebacks over the campaign's
+    message). Two campaigns on one machine: each scheduler's HTTP
     server on a port of its own, on loopback (Dask's default, 8787 on every interface, had
     the second warn "Port 8787 is already in use")."""
     import warnings
@@ -156,13 +158,15 @@ def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
         with campaign.local_cluster(1) as cluster, campaign.local_cluster(1) as other, Client(cluster) as client:
             def worker_settings():
                 import os
+                import signal
                 import sys
 
                 import dask
                 return (dask.config.get("distributed.worker.profile.enabled"), os.environ.get("OPENBLAS_NUM_THREADS"),
-                        os.getppid(), all(m in sys.modules for m in campaign.WORKER_PRELOAD))
-            (profile, blas, parent, preloaded), = client.run(worker_settings).values()
-            assert (profile, blas, preloaded) == (False, "1", True)
+                        os.getppid(), all(m in sys.modules for m in campaign.WORKER_PRELOAD),
+                        signal.getsignal(signal.SIGINT) == signal.SIG_IGN)
+            (profile, blas, parent, preloaded, no_interrupt), = client.run(worker_settings).values()
+            assert (profile, blas, preloaded, no_interrupt) == (False, "1", True, True)
             assert parent != os.getpid()  # the fork server's child, not this process's
             links = cluster.dashboard_link, other.dashboard_link
     assert not [str(w.message) for w in caught if "already in use" in str(w.message)]

@@ -101,7 +101,8 @@ def local_cluster(workers: int):
     once (:data:`WORKER_PRELOAD`), not each started afresh to import them itself: 0.3-0.5 s
     less for a four-run campaign on this machine's two cores (bench/HISTORY.md). The server
     is a process of its own with no thread, so its forks are safe, where forking this
-    process (Dask's threads) hung campaigns."""
+    process (Dask's threads) hung campaigns. The workers leave Ctrl-C to this process
+    (:mod:`quadrivio.local_worker`), which closes them."""
     import multiprocessing
     import multiprocessing.forkserver
 
@@ -121,7 +122,7 @@ def local_cluster(workers: int):
     with dask.config.set({"distributed.worker.profile.enabled": False,  # the workers start with it
                           "distributed.worker.multiprocessing-method": "forkserver"}):
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
-                            silence_logs=40, preload=list(WORKER_PRELOAD))
+                            silence_logs=40, preload=[*WORKER_PRELOAD, "quadrivio.local_worker"])
 
 
 def run_offline(scenario_path: str, seed: int, out_dir: str, settle: float) -> Dict:
