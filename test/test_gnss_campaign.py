@@ -146,7 +146,7 @@ def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
     for a dashboard that is not served); forked by the fork server, which imported the stack
     once, not started by this process to import it each; Ctrl-C left to the campaign, which
     closes the cluster (a worker that took it printed Dask's tracebacks over the campaign's
-    message). Two campaigns on one machine: each scheduler's HTTP
+    message), but not ignored by what a run starts. Two campaigns on one machine: each scheduler's HTTP
     server on a port of its own, on loopback (Dask's default, 8787 on every interface, had
     the second warn "Port 8787 is already in use")."""
     import warnings
@@ -159,14 +159,19 @@ def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
             def worker_settings():
                 import os
                 import signal
+                import subprocess
                 import sys
 
                 import dask
+                from quadrivio import local_worker
+                child = subprocess.run([sys.executable, "-c", "import signal; print(signal.getsignal(signal.SIGINT) "
+                                        "is signal.default_int_handler)"], capture_output=True, text=True).stdout
                 return (dask.config.get("distributed.worker.profile.enabled"), os.environ.get("OPENBLAS_NUM_THREADS"),
                         os.getppid(), all(m in sys.modules for m in campaign.WORKER_PRELOAD),
-                        signal.getsignal(signal.SIGINT) == signal.SIG_IGN)
-            (profile, blas, parent, preloaded, no_interrupt), = client.run(worker_settings).values()
-            assert (profile, blas, preloaded, no_interrupt) == (False, "1", True, True)
+                        signal.getsignal(signal.SIGINT) is local_worker._let_pass, child.strip())
+            (profile, blas, parent, preloaded, passes, child), = client.run(worker_settings).values()
+            assert (profile, blas, preloaded, passes) == (False, "1", True, True)
+            assert child == "True"  # what a run starts (experiment, roslaunch) stops on Ctrl-C itself
             assert parent != os.getpid()  # the fork server's child, not this process's
             links = cluster.dashboard_link, other.dashboard_link
     assert not [str(w.message) for w in caught if "already in use" in str(w.message)]

@@ -5,10 +5,10 @@ Ctrl-C reaches every process of the terminal's process group, the local cluster'
 among them. The campaign's own process answers it: it keeps the finished runs, closes the
 cluster (which ends the workers) and says how to resume. A worker that took the interrupt
 as well printed Dask's tracebacks of its broken connections over that message, 30-50
-lines of them. So a local worker leaves SIGINT to the campaign; it still ends with it (its
-nanny, in the campaign's process, ends it, and a worker whose parent is gone ends itself).
-A cluster's own worker, started with ``--preload quadrivio.campaign`` in a terminal of its
-own, keeps its Ctrl-C.
+lines of them. So a local worker lets SIGINT pass: a handler that does nothing, not
+SIG_IGN, which the programs a run starts (``campaign --ros``: ``experiment`` and its
+roslaunch) would inherit, and they must stop on Ctrl-C themselves. A cluster's own worker,
+started with ``--preload quadrivio.campaign`` in a terminal of its own, keeps its Ctrl-C.
 """
 
 from __future__ import annotations
@@ -17,7 +17,11 @@ import signal
 import threading
 
 
+def _let_pass(signum, frame) -> None:
+    """SIGINT in a local worker: the campaign's process answers it."""
+
+
 def dask_setup(worker) -> None:
-    """Dask's preload hook, as the worker starts: SIGINT ignored in its process."""
+    """Dask's preload hook, as the worker starts: SIGINT let pass in its process."""
     if threading.current_thread() is threading.main_thread():  # where Python lets a handler be set
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, _let_pass)
