@@ -78,7 +78,7 @@ def resolve(name_or_path: str) -> str:
 def _validators():
     """(section path, dataclass, defaults file) of every node a scenario can configure."""
     from quadrivio_description.vehicle import VehicleParams, default_vehicle_file
-    from quadrivio_localization.smoother import LocalizerParams
+    from quadrivio_localization.params import LocalizerParams
     from quadrivio_navigation.excitation import ExcitationParams
     from quadrivio_navigation.follower import FollowerConfig
     from quadrivio_navigation.guard import GuardParams
