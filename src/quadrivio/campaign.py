@@ -355,25 +355,25 @@ def write_plots(out: str, scenarios, seeds: List[int], rows: List[Dict], runs: L
 
 class Plotter:
     """One thread of this process drawing the campaign's plots, a client for
-    :func:`write_plots` (``submit``, ``gather``): matplotlib is imported by it once the runs
-    are submitted (``start``: imported before, it held the interpreter while four runs were
+    :func:`write_plots` (``submit``, ``gather``): :meth:`start` has it import matplotlib once
+    the runs are submitted (imported before, it held the interpreter while four runs were
     submitted, 0.25 s for what takes 0.02), and a scenario's plots are drawn as its last run
-    ends, while the workers run the others; at the end only the table's plot and the last scenario's are left, drawn while the
-    cluster closes. On this machine's two cores that made a four-run campaign 0.3-0.4 s
-    shorter than the workers drawing everything once the runs were done (bench/HISTORY.md).
-    One thread: matplotlib's figures are not for threads side by side."""
+    ends, while the workers run the others; at the end only the table's plot and the last
+    scenario's are left, drawn while the cluster closes. On this machine's two cores that
+    made a four-run campaign 0.3-0.4 s shorter than the workers drawing everything once the
+    runs were done (bench/HISTORY.md). One thread: matplotlib's figures are not for threads
+    side by side."""
 
-    def __init__(self, start: bool = True) -> None:
+    def __init__(self) -> None:
         from concurrent.futures import ThreadPoolExecutor
 
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-plots")
-        if start:
-            self.start()
 
     def start(self) -> None:
+        """matplotlib's import, once, while the runs go (a plot imports it anyway)."""
         from . import campaign_plots
 
-        self._pool.submit(campaign_plots._plt)  # the import, once, while the runs go
+        self._pool.submit(campaign_plots._plt)
 
     def submit(self, fn, *args, pure: bool = False):
         return self._pool.submit(fn, *args)
@@ -582,7 +582,7 @@ def main(argv=None) -> int:
                 print(f"campaign: cannot reach the Dask scheduler at {args.scheduler} within "
                       f"{SCHEDULER_TIMEOUT:g} s ({exc}); nothing run", file=sys.stderr)
                 return 2
-        plotter = Plotter(start=False)
+        plotter = Plotter()
         early: Dict[str, List] = {}  # a scenario's plots, drawn while the other scenarios' runs go on
 
         def scenario_done(s) -> None:

@@ -175,9 +175,6 @@ def follower_cross_track(status: Series) -> Optional[np.ndarray]:
     return np.column_stack([status.t[on], np.abs(xt[on])])
 
 
-COVER = 4  # discs along the footprint for touching's test of the poses far from everything
-
-
 def collision_events(gt: Series, grid, footprint, lethal: int = 65) -> Optional[int]:
     """Times the true footprint went from touching no occupied cell to touching one
     (ground-truth samples against the map's cells at or above ``lethal``)."""
@@ -192,6 +189,8 @@ def touching(gt: Series, grid, footprint, lethal: int = 65) -> np.ndarray:
     ``lethal`` (costmap.footprint_cells' cells), a bool per pose."""
     from quadrivio_navigation.costmap import footprint_cells
 
+    from .obstacle_metrics import cover_discs
+
     occupied = grid.data >= lethal
     hits = np.zeros(len(gt), dtype=bool)
     if not occupied.any():
@@ -200,7 +199,7 @@ def touching(gt: Series, grid, footprint, lethal: int = 65) -> np.ndarray:
     res = grid.resolution
     # Poses far from every occupied cell touch none: a cell footprint_cells returns has
     # its centre within the rectangle grown by half a cell's diagonal, so within ``disc`` of
-    # the centre of one of COVER discs along it, and that centre within half a diagonal of
+    # the centre of one of the discs covering it, and that centre within half a diagonal of
     # its own cell's centre. The distance transform (cell centre to the nearest occupied
     # cell's centre) at those cells leaves the exact test to the poses near something (an
     # orchard run: a disc about base_link left it 0.07 s of 0.1; the lanes are narrower than
@@ -208,17 +207,12 @@ def touching(gt: Series, grid, footprint, lethal: int = 65) -> np.ndarray:
     from scipy.ndimage import distance_transform_edt
 
     half = 0.5 * math.sqrt(2.0) * res
-    fp = footprint
-    part = 0.5 * (fp.front + fp.rear + 2.0 * half) / COVER
-    disc = math.hypot(part, 0.5 * (fp.left + fp.right) + half)
-    across = 0.5 * (fp.left - fp.right)
     clear = distance_transform_edt(~occupied) * res
     xs, ys, yaws = (np.asarray(gt[k], float) for k in ("x", "y", "yaw"))
-    cos, sin = np.cos(yaws), np.sin(yaws)
+    centres, disc = cover_discs(footprint, xs, ys, yaws, grow=half)
     far = np.ones(len(xs), dtype=bool)
-    for k in range(COVER):
-        along = -fp.rear - half + (2 * k + 1) * part
-        gxs, gys, _ = grid.to_grid_frame(xs + cos * along - sin * across, ys + sin * along + cos * across, 0.0)
+    for cx, cy in centres:
+        gxs, gys, _ = grid.to_grid_frame(cx, cy, 0.0)
         with np.errstate(invalid="ignore"):
             r, c = np.floor(gys / res), np.floor(gxs / res)
             on = (r >= 0) & (c >= 0) & (r < h) & (c < w)

@@ -136,7 +136,22 @@ def rectangle_distance(fp, x: float, y: float, yaw: float, pts: np.ndarray) -> n
     return np.hypot(du, dw)
 
 
-COVER = 4  # discs covering the footprint for min_clearance's bound
+COVER = 4  # discs along the footprint for the bounds of min_clearance and metrics.touching
+
+
+def cover_discs(fp, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, grow: float = 0.0, n: int = COVER):
+    """``n`` discs covering the footprint grown by ``grow`` on every side, at each pose
+    (arrays): their centres ([(x, y)] of arrays, one pair per disc, along the footprint) and
+    their common radius (each covers its ``1/n`` of the rectangle's length)."""
+    part = 0.5 * (fp.front + fp.rear + 2.0 * grow) / n
+    radius = math.hypot(part, 0.5 * (fp.left + fp.right) + grow)
+    across = 0.5 * (fp.left - fp.right)
+    c, s = np.cos(yaws), np.sin(yaws)
+    centres = []
+    for k in range(n):
+        along = -fp.rear - grow + (2 * k + 1) * part
+        centres.append((xs + c * along - s * across, ys + s * along + c * across))
+    return centres, radius
 
 
 def min_clearance(gt, fp, actors, grid, stride: int = 1, bodies: Optional[list] = None) -> Optional[float]:
@@ -165,14 +180,10 @@ def min_clearance(gt, fp, actors, grid, stride: int = 1, bodies: Optional[list] 
 
         tree = cKDTree(fixed)
         xs, ys, yaws = (np.asarray(gt[k], float)[idx.start:idx.stop:idx.step] for k in ("x", "y", "yaw"))
-        c, s_ = np.cos(yaws), np.sin(yaws)
-        half = 0.5 * (fp.front + fp.rear) / COVER
-        disc = math.hypot(half, 0.5 * (fp.left + fp.right))
-        across = 0.5 * (fp.left - fp.right)
+        centres, disc = cover_discs(fp, xs, ys, yaws)
         bound = np.full(len(xs), math.inf)
-        for k in range(COVER):
-            along = -fp.rear + (2 * k + 1) * half
-            d, _ = tree.query(np.column_stack([xs + c * along - s_ * across, ys + s_ * along + c * across]))
+        for cx, cy in centres:
+            d, _ = tree.query(np.column_stack([cx, cy]))
             bound = np.minimum(bound, d - disc - 1e-9)  # a nanometre for rounding
         for j in np.argsort(bound, kind="stable"):
             if not bound[j] < best:
