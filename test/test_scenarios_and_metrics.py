@@ -242,6 +242,38 @@ def test_a_replanned_route_counts_each_path_up_to_where_the_next_took_over():
     assert route_length([first, np.zeros((0, 2))]) == pytest.approx(30.0)  # an empty path: no route after it
 
 
+def test_the_cross_track_error_of_a_replanned_run_is_against_the_path_in_force_in_metrics_and_plot(monkeypatch):
+    """A run that drove 20 m east, then was replanned onto a route 40 m north of where it
+    started: the error of each time is to the path it followed then, in the metrics and in
+    errors.png alike (the plot measured every time against the last path: 40 m at the start
+    of a run that never left its path by more than 0.1 m)."""
+    from quadrivio import plots
+    from quadrivio.metrics import RunData, Series, cross_track_in_force
+
+    t = np.arange(0.0, 40.0, 0.1)
+    first = t < 20.0
+    x = np.where(first, t, 20.0)
+    y = np.where(first, 0.1, 0.1 + (t - 20.0) * 2.0)  # then north along x = 20
+    yaw = np.where(first, 0.0, math.pi / 2)
+    gt = Series(t, {"x": x, "y": y, "yaw": yaw, "vx": np.ones(len(t)), "wz": np.zeros(len(t))})
+    old = np.column_stack([np.linspace(0.0, 40.0, 81), np.zeros(81)])
+    new = np.column_stack([np.full(81, 20.0), np.linspace(0.0, 80.0, 81)])
+    run = RunData(ground_truth=gt, estimate=gt, predicted=Series.empty(), gps=Series.empty(), path=new,
+                  status=Series.from_rows([(0.0, 1, 0.0, 0.0), (39.9, 2, 1.0, 0.0)], ("status", "progress",
+                                                                                       "cross_track")),
+                  paths=[(0.0, old), (20.0, new)])
+    xt = cross_track_in_force(run, 0.0, 40.0)
+    assert np.max(xt[:, 1]) == pytest.approx(0.1, abs=1e-9) and len(xt) == len(t)
+    single = RunData(**{**run.__dict__, "paths": [(0.0, new)]})  # one path: measured against it
+    assert np.max(cross_track_in_force(single, 0.0, 40.0)[:, 1]) == pytest.approx(20.0, abs=1e-6)
+
+    drawn = {}
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.setdefault("fig", fig))
+    plots.errors(run, "unused.png", "replanned")
+    line = next(ln for ln in drawn["fig"].axes[2].lines if ln.get_label() == "true pose")
+    assert np.max(line.get_ydata()) == pytest.approx(0.1, abs=1e-9)
+
+
 def _collisions_by_every_pose(gt, grid, fp, lethal=65):
     """collision_events' definition, every ground-truth pose tested cell by cell: the
     events, and whether each pose touched."""

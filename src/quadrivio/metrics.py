@@ -144,9 +144,21 @@ def cross_track_replanned(gt: Series, paths: list, t0: float, t1: float) -> Opti
         lo, hi = max(t0, tp), min(t1, end)
         if hi > lo:
             xt = cross_track(gt, xy, lo, hi)
-            if xt is not None:
+            if xt is not None and hi == end:
+                xt = xt[xt[:, 0] < end]  # a pose at the replan's stamp is the next path's, not counted twice
+            if xt is not None and len(xt):
                 pieces.append(xt)
     return np.concatenate(pieces) if pieces else None
+
+
+def cross_track_in_force(run: "RunData", t0: float, t1: float) -> Optional[np.ndarray]:
+    """The ground truth's cross-track error against the path the vehicle followed at each
+    time: every path received (:func:`cross_track_replanned`) when it was replanned, else
+    the one path. Measured against the last path only, a run that replanned read the
+    distance of its first stretch to a route it never drove (tens of metres)."""
+    if len(run.paths) > 1:
+        return cross_track_replanned(run.ground_truth, run.paths, t0, t1)
+    return cross_track(run.ground_truth, run.path, t0, t1)
 
 
 def following_window(status: Series, default: tuple) -> tuple:
@@ -355,7 +367,7 @@ def compute(run: RunData, scenario: Optional[str] = None, seed: Optional[int] = 
                                                                       if not d[1] and d[2] == reason)
     if len(gt):
         t0, t1 = following_window(st, (float(gt.t[0]), float(gt.t[-1])))
-        xt = cross_track_replanned(gt, run.paths, t0, t1) if len(run.paths) > 1 else cross_track(gt, run.path, t0, t1)
+        xt = cross_track_in_force(run, t0, t1)
         if xt is not None and len(xt):
             m["xte_rmse_m"] = float(np.sqrt(np.mean(xt[:, 1] ** 2)))
             m["xte_max_m"] = float(np.max(xt[:, 1]))

@@ -10,7 +10,7 @@ import numpy as np
 
 from quadrivio_runtime.files import atomic_path
 
-from .metrics import RunData, cross_track, follower_cross_track, following_window, gps_errors, position_errors
+from .metrics import RunData, cross_track_in_force, follower_cross_track, following_window, gps_errors, position_errors
 
 
 def _plt():
@@ -161,8 +161,12 @@ def trajectory(run: RunData, path: str, title: str) -> None:
     fig, ax = plt.subplots(figsize=(7.5, 7.5))
     if run.map is not None:
         _draw_map(ax, run.map)
+    earlier = [xy for _, xy in run.paths[:-1] if len(xy) >= 2]
+    for i, xy in enumerate(earlier):  # replaced by a replan: what the vehicle was following before
+        ax.plot(xy[:, 0], xy[:, 1], ls=(0, (2, 2)), color="0.55", lw=0.9,
+                label=f"earlier plans ({len(earlier)})" if i == 0 else None)
     if run.path is not None:
-        label = "planned path" if run.goal is not None else "reference path"
+        label = ("planned path" + (" (the last)" if earlier else "")) if run.goal is not None else "reference path"
         ax.plot(run.path[:, 0], run.path[:, 1], "k--", lw=1.2, label=label)
     if run.goal is not None:
         _draw_goal(ax, run.goal)
@@ -228,7 +232,7 @@ def errors(run: RunData, path: str, title: str) -> bool:
     axes[1].plot(pe[:, 0] - t0, np.degrees(pe[:, 2]), color="tab:blue", lw=1)
     axes[1].set_ylabel("heading error [deg]")
     span = following_window(run.status, (float(run.ground_truth.t[0]), float(run.ground_truth.t[-1])))
-    xt = cross_track(run.ground_truth, run.path, *span)
+    xt = cross_track_in_force(run, *span)
     if xt is not None:
         axes[2].plot(xt[:, 0] - t0, xt[:, 1], color="tab:green", lw=1, label="true pose")
     xe = follower_cross_track(run.status)
