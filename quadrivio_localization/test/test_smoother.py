@@ -278,13 +278,37 @@ def test_a_locked_wheel_is_not_taken_for_standstill_nor_the_fixes_for_multipath(
     assert errors[errors[:, 0] > 19.0, 1].max() < 0.5
 
 
+def test_a_full_brake_in_a_turn_is_no_dead_wheel_once_the_vehicle_stands():
+    """A protective stop in a curve: a full brake with the handlebar at 0.3 rad from 2.75 m/s.
+    The wheel locks and reads 0 while the vehicle slides on, turning, which is what a dead
+    wheel-speed channel looks like, and the check named one. It held for the 15 s the
+    vehicle stood braked: /diagnostics said "wheel speed reads 0 while the vehicle moves"
+    and the smoother ignored the odometry of a standing vehicle. Now the fault ends with the
+    lock: by the time the vehicle must have stopped, nothing is wrong with the wheel."""
+    from quadrivio_sim.script import ScriptRow, SetpointScript
+
+    def script(seconds):
+        return SetpointScript([ScriptRow(0.0, 0.0, 0.0, 0.0), ScriptRow(2.0, 3.0, 0.3, 0.0),
+                               ScriptRow(20.0, 0.0, 0.3, 1.0), ScriptRow(35.0, 2.0, 0.3, 0.0)])
+
+    errors, loc, _ = run(seconds=40.0, seed=0, script=script)
+    events = loc.pop_events()
+    assert any("locked wheel" in e for e in events), events
+    assert any("odometry used again" in e for e in events), events
+    assert not loc.faults()  # driving again
+    # at most the lock's time of it: the lock lasts v / 3 m/s^2 < 1 s, 20 keyframes
+    assert loc.counters.intervals_without_odometry <= 25, loc.counters
+    assert errors[errors[:, 0] > 19.0, 1].max() < 0.4
+
+
 def test_a_locked_wheel_in_a_gps_outage_brakes_the_estimate_by_the_imu():
     """The same full brake with no fix from 19.8 to 24 s: the wheel reads 0 from the lock
     on, which is also how a dead wheel-speed channel begins (the vehicle then drives on), so
     the wheel cannot say which. The IMU can: from the lock's onset its speed (the wheel's
     before the drop plus the specific force's integral, gravity out) brakes the estimate
     with the vehicle. Without it (the IMU speed's sd made huge) the estimate keeps the speed
-    of the slide and the dead-wheel check then holds the odometry off: 7.5 m off by 24 s."""
+    of the slide until the lock ends: 1.15 m off (7.5 m by 24 s while a dead-wheel fault
+    found in the slide outlasted the lock and held the odometry off)."""
     from offline_run import brake_script
 
     def outage(n):
@@ -297,7 +321,7 @@ def test_a_locked_wheel_in_a_gps_outage_brakes_the_estimate_by_the_imu():
         assert loc.counters.intervals_wheel_locked > 0 and loc.counters.intervals_imu_speed > 0
         return errors[(errors[:, 0] > 19.5) & (errors[:, 0] < 24.0), 1].max()
     assert worst(LocalizerParams().noise.imu_speed_sd) < 0.6
-    assert worst(100.0) > 2.0
+    assert worst(100.0) > 0.9
 
 
 def test_no_wheel_lock_in_ordinary_driving(calibrated_run):

@@ -26,3 +26,41 @@ def test_a_dead_wheel_channel_is_named_after_its_check_time_and_cleared_by_motio
     # check_time 0: the check is off
     d = DeadWheel(0.05, 0.0, 0.05, 0.05)
     assert not any(d.update(0.05 * k, 0.0, 1.0)[0] for k in range(1, 100))
+
+
+def test_a_dead_channel_found_in_a_locked_wheels_slide_ends_with_the_lock_once_the_vehicle_stops_turning():
+    """A full brake in a turn: the wheel locks and reads 0 while the vehicle slides on,
+    turning, so the check finds a "dead" channel during the lock. Once the lock ends (the
+    vehicle must have stopped) with the gyro quiet, the wheel's standstill is the vehicle's:
+    not dead. Still turning then, or found outside any lock, it stays dead until the wheel
+    reads motion."""
+    from quadrivio_localization.wheel_lock import DeadWheel
+
+    def drive(lock_until, rates):
+        d, out = DeadWheel(check_rate=0.05, check_time=0.3, rest_speed=0.05, dt=0.05), []
+        for k, rate in enumerate(rates):
+            out.append(d.update(0.05 * (k + 1), 0.0, rate, lock_until))
+        return d, out
+
+    slide = [0.3] * 8 + [0.0] * 40  # turning for 0.4 s, then standing
+    d, out = drive(1.0, slide)
+    dead = [x for x, _, _ in out]
+    assert dead[5] and sum(b for _, b, _ in out) == 1  # found in the slide (after check_time)...
+    assert not any(dead[19:]) and all(dead[5:19])  # ...and over when the lock ends, at 1.0 s
+    ended = [e for _, _, ev in out for e in ev if "odometry used again" in e]
+    assert len(ended) == 1 and "at 1.00 s" in ended[0] and d.since is None
+    # no new fault while it stands: the gyro is quiet
+    assert d.update(5.0, 0.0, 0.0, None) == (False, False, [])
+    # still turning when the lock ends (a channel that died at speed): dead until motion
+    d, out = drive(1.0, [0.3] * 48)
+    assert all(x for x, _, _ in out[5:]) and d.since is not None
+    # found with no lock going on (a braked vehicle pushed round): dead while it stands
+    d, out = drive(None, slide)
+    assert all(x for x, _, _ in out[5:]) and d.since is not None
+    # the gyro unknown when the lock ends: kept (nothing says it stopped turning)
+    d, out = drive(1.0, [0.3] * 8 + [None] * 40)
+    assert all(x for x, _, _ in out[5:])
+    # the wheel turning again ends the fault as before, whatever the lock
+    d, _ = drive(10.0, [0.3] * 10)
+    dead, began, events = d.update(0.6, 1.0, 0.3, 10.0)
+    assert not dead and "back at" in events[0] and d.lock_until is None

@@ -474,7 +474,9 @@ class Localizer:
         """Whether the wheel-speed channel reads 0 while the vehicle moves (:class:`.DeadWheel`);
         named in :meth:`faults`."""
         rate = None if dth_gyro is None else dth_gyro / self.dt - bias
-        dead, began, events = self.dead_wheel.update(t, max(abs(v) for _, v, _ in samples), rate)
+        lock = self.wheel_lock
+        lock_until = lock.until if lock.since is not None and lock.confirmed else None
+        dead, began, events = self.dead_wheel.update(t, max(abs(v) for _, v, _ in samples), rate, lock_until)
         self.events.extend(events)
         if began:
             # The last wheel_check_time s of odometry said "standing" and the estimate believed

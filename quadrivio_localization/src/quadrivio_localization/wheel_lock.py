@@ -79,24 +79,42 @@ class DeadWheel:
     while the bias-corrected gyro says the vehicle turns faster than ``check_rate`` for
     ``check_time`` s (an Ackermann vehicle cannot turn in place). The fault holds while the
     wheel reads standstill (below ``rest_speed``); ``since`` is its start, None without one.
-    One :meth:`update` per keyframe interval of ``dt`` s."""
+    One :meth:`update` per keyframe interval of ``dt`` s.
+
+    A full brake in a turn locks the wheel while the vehicle slides on, turning: the check
+    then finds a "dead" channel during the lock, and held it for as long as the braked
+    vehicle stood (15 s of "reads 0 while the vehicle moves" in /diagnostics, and no
+    odometry, after a protective stop in a curve). So a fault found during a wheel lock
+    ends with the lock (``lock_until``: when the vehicle must have stopped) if the gyro
+    then says the vehicle no longer turns: the wheel's standstill is the vehicle's, as the
+    lock itself concludes. A channel that died at speed first reads as a lock too; the
+    vehicle still turning when the lock ends keeps it dead (a dead channel on a straight
+    line is beyond this check either way)."""
 
     def __init__(self, check_rate: float, check_time: float, rest_speed: float, dt: float) -> None:
         self.check_rate, self.check_time, self.rest_speed, self.dt = check_rate, check_time, rest_speed, dt
         self.suspect = 0.0  # [s] the wheel read 0 while the gyro said the vehicle turned
         self.since: Optional[float] = None
+        self.lock_until: Optional[float] = None  # found during a wheel lock: when that lock ends
 
-    def update(self, t: float, max_speed: float, yaw_rate: Optional[float]) -> Tuple[bool, bool, List[str]]:
+    def update(self, t: float, max_speed: float, yaw_rate: Optional[float],
+               lock_until: Optional[float] = None) -> Tuple[bool, bool, List[str]]:
         """``max_speed``: the largest wheel speed magnitude in the interval ending at ``t``;
-        ``yaw_rate``: the gyro's bias-corrected yaw rate over it (None: unknown). Returns
-        (dead, just began, events to log)."""
+        ``yaw_rate``: the gyro's bias-corrected yaw rate over it (None: unknown);
+        ``lock_until``: with a wheel lock going on, when it ends. Returns (dead, just
+        began, events to log)."""
         if max_speed >= self.rest_speed or self.check_time <= 0.0:
             self.suspect = 0.0
             events = [] if self.since is None else [f"wheel speed back at {t:.2f} s after {t - self.since:.1f} s "
                                                     "reading 0 while moving"]
-            self.since = None
+            self.since = self.lock_until = None
             return False, False, events
         if self.since is not None:
+            if (self.lock_until is not None and t >= self.lock_until and yaw_rate is not None
+                    and abs(yaw_rate) <= self.check_rate):
+                since, self.since, self.lock_until, self.suspect = self.since, None, None, 0.0
+                return False, False, [f"wheel speed reads 0 and the gyro no turn at {t:.2f} s, after the locked "
+                                      f"wheel's slide (0 since {since:.2f} s): the vehicle stands, odometry used again"]
             return True, False, []
         if yaw_rate is not None and abs(yaw_rate) > self.check_rate:
             self.suspect += self.dt
@@ -104,6 +122,7 @@ class DeadWheel:
             self.suspect = 0.0
         if self.suspect >= self.check_time - 1e-9:
             self.since = t
+            self.lock_until = lock_until
             return True, True, [f"wheel speed reads 0 at {t:.2f} s while the gyro says the vehicle turns: "
                                 "odometry ignored until it reads motion again"]
         return False, False, []
