@@ -72,6 +72,33 @@ def test_a_goal_without_a_map_is_refused(tmp_path):
         closed_loop.run(load_scenario(str(path)), 0, max_duration=1.0)
 
 
+def test_a_run_whose_plan_failed_did_not_complete(tmp_path):
+    """The orchard with its goal in a tree: the planner refuses it, the follower never
+    reports, and the run did not complete: ``completed`` false in metrics.json and 0 in the
+    campaign's table (null there, the campaign's mean left the seed out)."""
+    from quadrivio import campaign
+
+    data = yaml.safe_load(open(resolve("orchard")))
+    data.update(name="goal_in_tree", path={"kind": "goal", "goal": [21.0, 5.0, 0.0]})
+    data["map"]["file"] = os.path.join(os.path.dirname(resolve("orchard")), data["map"]["file"])
+    path = tmp_path / "goal_in_tree.yaml"
+    path.write_text(yaml.safe_dump(data))
+    s = load_scenario(str(path))
+    r = closed_loop.run(s, 0, max_duration=10.0)
+    assert r.outcome.startswith("planner failed: goal") and "in collision" in r.outcome
+    m = closed_loop.write_run(r, s, 0, str(tmp_path / "run"), plots=False)
+    assert m["completed"] is False
+    assert campaign._closed_loop_figures(s, 0, m, False)["completed"] == 0.0
+    # from the recording alone (no outcome) it stays null; a finished run keeps its own
+    alone = metrics.compute(r.run, s.name, 0, r.wall_s, scenario_vehicle(s))
+    assert alone["completed"] is None
+    metrics.settle_completed(alone, "duration", "completed")  # a run that ends on its duration: not judged here
+    assert alone["completed"] is None
+    done = {"completed": True}
+    metrics.settle_completed(done, "path_done", "time limit")
+    assert done["completed"] is True
+
+
 def test_write_run_writes_the_experiment_keys_and_plots(tmp_path):
     s = load_scenario("figure_eight")
     r = closed_loop.run(s, 0, max_duration=8.0)

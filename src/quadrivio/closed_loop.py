@@ -661,6 +661,7 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
 
     v = vehicle if vehicle is not None else scenario_vehicle(s, load_vehicle())
     m = metrics_mod.compute(r.run, s.name, seed, r.wall_s, v)
+    metrics_mod.settle_completed(m, s.run.end, r.outcome)
     m.update({"runner": "in_process", "outcome": r.outcome, "cpu_s": r.cpu_s,
               "sim_s_per_cpu_s": r.sim_s / r.cpu_s if r.cpu_s > 0 else None})
     os.makedirs(out, exist_ok=True)
@@ -670,7 +671,7 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
 
     put("metrics.json", json.dumps(m, indent=2, default=float) + "\n")
     put("run_info.json", json.dumps({"scenario": s.name, "scenario_file": s.path, "seed": seed, "runner": "in_process",
-                                     "outcome": r.outcome, "sim_duration_s": r.sim_s, "wall_duration_s": r.wall_s,
+                                     "outcome": r.outcome, "end": s.run.end, "sim_duration_s": r.sim_s, "wall_duration_s": r.wall_s,
                                      "cpu_s": r.cpu_s, "counters": r.counters,
                                      "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")},
                                     indent=2, default=float) + "\n")

@@ -161,6 +161,17 @@ def cross_track_in_force(run: "RunData", t0: float, t1: float) -> Optional[np.nd
     return cross_track(run.ground_truth, run.path, t0, t1)
 
 
+def settle_completed(m: Dict[str, object], end: Optional[str], outcome: Optional[str]) -> None:
+    """``completed`` of a run that was to follow a path to its end (``run.end: path_done``)
+    but whose follower never reported (its planner failed, or time ran out first): False,
+    from the run's outcome. Computed from the recording alone it is null, which is right
+    for a recording without a follower but read as "not a run that completes": a campaign's
+    mean then left out the seeds whose plan failed (a goal in a tree showed a blank
+    instead of 0). Unchanged without an outcome (a bag analysed on its own)."""
+    if m.get("completed") is None and end == "path_done" and outcome:
+        m["completed"] = outcome == "completed"
+
+
 def following_window(status: Series, default: tuple) -> tuple:
     """From the first FOLLOWING status to the first DONE/ABORTED (or the default span)."""
     if len(status) == 0:

@@ -81,6 +81,7 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         scenes, stops = read_stop_scenes(opened, bag, run, vehicle, [(sc.topic, sc.frame) for sc in guard.scanners])
     progress.phase("read; computing the metrics")
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
+    metrics.settle_completed(m, info.get("end"), info.get("outcome"))  # an experiment's run_info.json says them
     if info.get("stack_cpu_s") is not None:  # experiment measured its processes' CPU while sim time ran
         m.update(metrics.cpu_metrics(info.get("stack_cpu_s"), info.get("stack_cpu_sim_s"), info.get("stack_cpu_wall_s"),
                                      info.get("cpu_cores")))

@@ -563,6 +563,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     runner.log(f"run ended: {outcome}; analysing {os.path.relpath(os.path.join(runner.out, 'run.bag'))}")
     info = {"scenario": runner.scenario.name, "scenario_file": runner.scenario.path, "seed": runner.seed,
             "real_time_factor": runner.rtf, "wall_duration_s": runner.wall_duration, "outcome": outcome,
+            "end": runner.scenario.run.end,
             "stack": args.stack, "lockstep": args.lockstep, "stale_fraction": args.stale_fraction,
             **runner.cpu_report(),
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")}
