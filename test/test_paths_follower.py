@@ -306,6 +306,34 @@ def test_follower_aborts_when_blocked():
     assert log[-1, 1] < 10.0
 
 
+def test_the_way_to_the_paths_first_pose_counts_as_progress():
+    """A reference path starts 1 m ahead of the vehicle. Up a steep slope the vehicle took
+    5 s to start, then crept on at 0.12 m/s: 1.2 m in 10 s, of which only the last 0.2 m
+    past the path's first pose, and it was aborted for "no progress". The way there counts;
+    standing 1 m short of it for 10 s is still a stall."""
+    v = load_vehicle()
+    path = make_path(figure_eight(FigureEightParams(), (0.0, 0.0, 0.0)), SpeedProfileParams(speed=2.0))
+    assert path.x[0] == pytest.approx(1.0) and path.y[0] == pytest.approx(0.0)
+
+    def drive(speed_of):
+        pp = PurePursuit(FollowerParams(stall_time=10.0, stall_distance=0.3), path, v)
+        pp.set_limits(1.0, 1.0)
+        x, c = 0.0, None
+        for k in range(700):  # 14 s at 50 Hz along the path's first heading
+            t = 0.02 * k
+            c = pp.update(x, 0.0, 0.0, speed_of(t), t=t)
+            if c.status == ABORTED:
+                return c, pp.reason, x
+            x += 0.02 * speed_of(t)
+        return c, "", x
+
+    creeping = lambda t: 0.0 if t < 5.0 else 0.12  # noqa: E731
+    c, reason, x = drive(creeping)
+    assert c.status == FOLLOWING and reason == "" and x > 1.0, reason
+    c, reason, _ = drive(lambda t: 0.0)
+    assert c.status == ABORTED and "no progress" in reason
+
+
 def test_a_stale_pose_stops_the_vehicle_within_its_distance_budget_and_a_fresh_one_drives_on():
     """A dead localization: the pose's age limit falls with the speed (pose_budget / v), the
     vehicle brakes where it is, and drives on from rest once a fresh pose comes (it used to

@@ -29,7 +29,8 @@ goal, with the errors) beyond. A stale pose must not steer the vehicle: one olde
 on from rest. It aborts at once (full stop) when the cross-track error exceeds
 ``max_cross_track``, and when, told to move, it has got less than ``stall_distance``
 further along the route in ``stall_time`` (blocked by something the map does not show,
-stuck). :meth:`PurePursuit.stop` ends a route with a controlled stop.
+stuck; short of the route's first pose, the way to it counts). :meth:`PurePursuit.stop`
+ends a route with a controlled stop.
 
 Setpoints change no faster than the vehicle can follow when ``update`` gets the time: the
 speed by the profile's acceleration and deceleration limits, the handlebar by the
@@ -311,7 +312,7 @@ class PurePursuit:
         v_sp *= d
         v_sp, h = self._slew(v_sp, h, t)
         if t is not None:
-            stalled = self._stalled(t, 0.0 if held else v_sp)
+            stalled = self._stalled(t, 0.0 if held else v_sp, x, y)
             if stalled:
                 return self.abort(stalled, xte)
         return Command(v_sp, h, 0.0, FOLLOWING, xte, self._progress(), self._remaining(),
@@ -337,9 +338,17 @@ class PurePursuit:
         return Command(0.0, self.sp_handlebar, self.p.stop_brake, FOLLOWING, 0.0, self._progress(),
                        self._remaining(), self.waiting_pose, self.k, seg.direction)
 
-    def _stalled(self, t: float, v_sp: float) -> str:
-        """A reason to abort when the vehicle, told to move, does not get along the route."""
+    def _stalled(self, t: float, v_sp: float, x: float, y: float) -> str:
+        """A reason to abort when the vehicle, told to move, does not get along the route.
+        Short of the route's first pose (a reference path starts 1 m ahead of the vehicle)
+        the way there counts: the route as if it began where the vehicle is. Counted from
+        the first pose only, a vehicle slow to start up an 18 % slope (5 s to move, then
+        0.3 m/s) was aborted for "0.20 m along the path in 10 s" after driving 1.2 m."""
         done = self.route.length - self._remaining()
+        if self.k == 0 and self.tracker.i == 0 and len(self.path) > 1:
+            p = self.path
+            tx, ty = math.cos(p.theta[0]), math.sin(p.theta[0])
+            done -= max(0.0, -((x - p.x[0]) * tx + (y - p.y[0]) * ty))  # how far short of it, along its heading
         if abs(v_sp) < 0.5 * self.p.min_speed or self.stall_ref is None or \
                 abs(done - self.stall_ref[1]) >= self.p.stall_distance:
             self.stall_ref = (t, done)
