@@ -88,7 +88,16 @@ def test_a_run_whose_plan_failed_did_not_complete(tmp_path):
     assert r.outcome.startswith("planner failed: goal") and "in collision" in r.outcome
     m = closed_loop.write_run(r, s, 0, str(tmp_path / "run"), plots=False)
     assert m["completed"] is False
-    assert campaign._closed_loop_figures(s, 0, m, False)["completed"] == 0.0
+    fig = campaign._closed_loop_figures(s, 0, m, False)
+    assert fig["completed"] == 0.0
+    # the campaign's table says which runs did not complete, and how they ended
+    done = dict(fig, seed=1, end="completed", outcome="completed", completed=1.0)
+    many = [dict(fig, seed=k) for k in range(2, 25)]
+    runs = [fig, done] + many
+    campaign.write_tables(str(tmp_path), campaign.table(runs, [s.name]), runs, {"mode": "closed loop", "seeds": [0]})
+    md = (tmp_path / "campaign.md").read_text()
+    assert "Runs that did not complete:" in md and "goal_in_tree seed 1:" not in md
+    assert f"- goal_in_tree seed 0: {r.outcome}" in md and "- and 4 more (campaign.json" in md
     # from the recording alone (no outcome) it stays null; a finished run keeps its own
     alone = metrics.compute(r.run, s.name, 0, r.wall_s, scenario_vehicle(s))
     assert alone["completed"] is None

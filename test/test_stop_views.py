@@ -160,6 +160,33 @@ def test_a_nearest_point_that_is_no_return_is_named():
     assert off_returns(StopScene(1.0, 4, "", "silent", "", 1, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, math.inf, None)) is None
 
 
+def test_a_stop_for_where_a_moving_thing_may_be_shows_where_it_may_come_from():
+    """A runner at 3 m/s 6 m to the right, predicted into the protective field within 2 s:
+    the picture widens to the returns within speed x horizon of the guard's point (it showed
+    the fields and a building, and no runner). Not for a point on a return, nor a reason
+    without a moving obstacle, nor returns beyond that reach."""
+    from quadrivio.stop_views import moving_sources, view_extent
+
+    runner = np.array([[0.5, -6.0], [0.7, -5.9], [0.9, -6.0]])
+    returns = {"scan/front": np.array([[1.5, 2.3], [2.0, 2.2]]), "scan/rear": runner}
+    reason = "moving obstacle (3.0 m/s, where it may be within 2.0 s) 0.97 m along the path, inside the protective field"
+    scene = StopScene(27.24, 2, "protective", reason, "scan/rear", 1, 2.0, 2.01, 0.118, 0.09, 1.46, 3.6, 0.97,
+                      (3.2, -0.43), returns)
+    fp = Footprint.from_vehicle(V, 0.15)
+    x0, x1, y0, y1 = view_extent(scene, fp, 2.0)
+    assert y0 <= -6.5 and x0 <= -4.0 and x1 >= 6.0  # the runner in view, with room
+    assert len(moving_sources(scene)) == 5  # the runner's three returns and the building's two (6.5 m reach)
+    plain = StopScene(27.24, 2, "protective", "obstacle 0.97 m along the path", "scan/rear", 1, 2.0, 2.01, 0.118,
+                      0.09, 1.46, 3.6, 0.97, (3.2, -0.43), returns)
+    assert view_extent(plain, fp, 2.0)[2] == pytest.approx(-4.0)
+    slow = StopScene(27.24, 2, "protective", reason.replace("3.0 m/s", "1.0 m/s"), "scan/rear", 1, 2.0, 2.01,
+                     0.118, 0.09, 1.46, 3.6, 0.97, (3.2, -0.43), returns)
+    assert len(moving_sources(slow)) == 0 and view_extent(slow, fp, 2.0)[2] == pytest.approx(-4.0)  # 2.5 m: none
+    on_return = StopScene(27.24, 2, "protective", reason, "scan/rear", 1, 2.0, 2.01, 0.118, 0.09, 1.46, 3.6, 0.97,
+                          (0.7, -5.9), returns)
+    assert len(moving_sources(on_return)) == 0
+
+
 def test_a_bag_of_an_older_guard_status_is_drawn_too(tmp_path):
     """Bags recorded with GuardStatus's first definition (7f00fdf, 2026-11-26: no handlebars):
     read through their own message definition, the missing fields are unknown, not a crash."""

@@ -168,6 +168,11 @@ def run_closed_loop(scenario_path: str, seed: int, out_dir: str, settle: float, 
         raise CampaignError(f"experiment {s.name} seed {seed} failed (exit {p.returncode}): {tail}")
     with open(metrics) as f:
         m = json.load(f)
+    try:  # how the run ended (experiment's run_info.json): said for the runs that did not complete
+        with open(os.path.join(folder, "run_info.json")) as f:
+            m.setdefault("outcome", json.load(f).get("outcome"))
+    except (OSError, ValueError, AttributeError):
+        pass
     fig = _closed_loop_figures(s, seed, m, p.returncode == 0)
     try:  # the bag experiment analysed, read again for the campaign's plots
         from quadrivio_description.site import load_site
@@ -212,6 +217,7 @@ def run_in_process(scenario_path: str, seed: int, out_dir: str, settle: float, r
 def _closed_loop_figures(s, seed: int, m: Dict, completed: bool) -> Dict:
     """A closed-loop run's figures for the table, from its metrics.json."""
     return {"scenario": s.name, "seed": seed, "end": "completed" if completed else "not completed",
+            "outcome": m.get("outcome"),
             "rmse_m": m.get("loc_rmse_after_10s_m", m.get("loc_rmse_m")), "gps_rmse_m": m.get("gps_rmse_m"),
             "max_error_m": m.get("loc_max_m"), "heading_rmse_deg": m.get("loc_heading_rmse_deg"),
             "wall_s": m.get("wall_duration_s"), "sim_s": m.get("sim_duration_s"), "xte_rmse_m": m.get("xte_rmse_m"),
@@ -273,9 +279,24 @@ def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> No
     for r in rows:
         md.append(f"| {r['scenario']} | {r['seeds']} | " +
                   " | ".join(_fmt(r.get(k), r.get(k + "_sd")) for k, _, _ in used) + " |")
+    md += _not_completed(runs)
     atomic_write(os.path.join(out, "campaign.md"), ("\n".join(md) + "\n").encode())
     atomic_write(os.path.join(out, "campaign.json"),
                   json.dumps({"meta": meta, "table": rows, "runs": runs}, indent=1, default=float).encode())
+
+
+def _not_completed(runs: List[Dict], most: int = 20) -> List[str]:
+    """campaign.md's lines naming each closed-loop run that did not complete and how it
+    ended (its outcome: the planner's reason, the follower's, a time limit), in table order;
+    the first ``most``, the rest counted (campaign.json has them all)."""
+    failed = [r for r in runs if r.get("outcome") and r.get("end") != "completed"]
+    if not failed:
+        return []
+    lines = ["", "Runs that did not complete:", ""]
+    lines += [f"- {r['scenario']} seed {r['seed']}: {r['outcome']}" for r in failed[:most]]
+    if len(failed) > most:
+        lines.append(f"- and {len(failed) - most} more (campaign.json, `runs`)")
+    return lines
 
 
 def _series(out: str, name: str, seeds: List[int]) -> List:

@@ -690,6 +690,9 @@ def plot_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None
     from .plots import all_plots
     from .stop_views import add_world, write_views
 
+    import os
+
+    os.makedirs(out, exist_ok=True)
     title = f"{s.name}, seed {seed} (in process)"
     made = all_plots(r.run, out, title)
     if r.stop_scenes:

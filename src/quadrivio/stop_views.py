@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Tuple
 
@@ -141,13 +142,37 @@ def swept_mask(fp, poses: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndar
     return covered.reshape(gx.shape)
 
 
-def _extent(scene: StopScene, fp, reach: float) -> Tuple[float, float, float, float]:
+_MOVING = re.compile(r"moving obstacle \(([0-9.]+) m/s, where it may be within ([0-9.]+) s\)")
+
+
+def moving_sources(scene: StopScene, margin: float = 0.5) -> np.ndarray:
+    """For a stop on a moving obstacle's predicted place (the guard's reason names its speed
+    and horizon, and its nearest point is no return): the returns it may have come from,
+    those within speed x horizon (+ ``margin``) of that point; empty otherwise."""
+    m = _MOVING.search(scene.reason or "")
+    if m is None or off_returns(scene) is None:
+        return np.zeros((0, 2))
+    reach = float(m.group(1)) * float(m.group(2)) + margin
+    allp = np.concatenate([p for p in scene.scans.values() if len(p)])
+    return allp[np.hypot(allp[:, 0] - scene.nearest[0], allp[:, 1] - scene.nearest[1]) <= reach]
+
+
+def view_extent(scene: StopScene, fp, reach: float) -> Tuple[float, float, float, float]:
+    """The picture's (x0, x1, y0, y1) in base_link: the fields with room about them, and the
+    returns a moving obstacle's predicted place may have come from (a runner 6 m to the side
+    of a stop for where they would be in 2 s was out of the picture, which then showed a
+    stop for nothing)."""
     ahead = max(6.0, fp.front + max(scene.warning, scene.protective) + 2.0)
     behind = max(4.0, fp.rear + 2.0)
     if scene.direction < 0:  # reversing: the fields lie behind
         ahead, behind = max(4.0, fp.front + 2.0), max(6.0, fp.rear + max(scene.warning, scene.protective) + 2.0)
     side = max(4.0, 0.6 * reach)
-    return -behind, ahead, -side, side
+    x0, x1, y0, y1 = -behind, ahead, -side, side
+    src = moving_sources(scene)
+    if len(src):
+        x0, x1 = min(x0, float(src[:, 0].min()) - 0.5), max(x1, float(src[:, 0].max()) + 0.5)
+        y0, y1 = min(y0, float(src[:, 1].min()) - 0.5), max(y1, float(src[:, 1].max()) + 0.5)
+    return x0, x1, y0, y1
 
 
 def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", ds: float = 0.05) -> None:
@@ -163,7 +188,7 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
     warn_poses = field_poses(scene, vehicle, scene.warning, scene.requested_speed or scene.measured_speed, ds)
     prot_poses = field_poses(scene, vehicle, scene.protective, scene.measured_speed, ds)
     reach = float(np.max(np.abs(warn_poses[:, 1]))) + fp.left + fp.right if len(warn_poses) else 0.0
-    x0, x1, y0, y1 = _extent(scene, fp, reach)
+    x0, x1, y0, y1 = view_extent(scene, fp, reach)
     fig, ax = plt.subplots(figsize=(11.5, 8.5 * (y1 - y0) / (x1 - x0) + 1.4))
     xs, ys = np.arange(x0, x1, 0.04) + 0.02, np.arange(y0, y1, 0.04) + 0.02
     for poses, length, colour, label, alpha in ((warn_poses, scene.warning, "orange", "warning field", 0.22),
@@ -193,7 +218,13 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
     if scene.nearest is not None:
         ax.plot(*scene.nearest, "X", color="k", ms=11, mec="w", label="nearest (the guard's)")
     off = off_returns(scene)
-    if off is not None:  # not a return: a tracked thing's margin or its predicted place
+    moving = _MOVING.search(scene.reason or "")
+    if off is not None and moving is not None:  # a moving thing's predicted place: where it may have come from
+        speed, horizon = float(moving.group(1)), float(moving.group(2))
+        a = np.linspace(0.0, 2.0 * math.pi, 121)
+        ax.plot(scene.nearest[0] + speed * horizon * np.cos(a), scene.nearest[1] + speed * horizon * np.sin(a), "k:",
+                lw=0.9, label=f"reach of a thing at {speed:.1f} m/s in {horizon:.1f} s")
+    elif off is not None:  # not a return: the margin kept from a tracked thing that moved
         ax.plot([scene.nearest[0], off[1][0]], [scene.nearest[1], off[1][1]], "k:", lw=1.0)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
