@@ -91,3 +91,64 @@ def test_discs_close_the_way_toward_the_points_but_not_the_start():
     # without a footprint the whole disc, and the map's edge clips it
     full = mark_discs(grid, [(-4.95, -4.95)], 0.45)
     assert int((full.data == 100).sum()) > 0 and full.data[0, 0] == 100
+
+
+def _layer(marked=(), unknown=()):
+    """A local layer's grid: seen free everywhere but at the ``marked`` (100) and ``unknown`` (-1) points."""
+    g = local_with(*marked)
+    for x, y in unknown:
+        r, c = g.cell_of(x, y)
+        g.data[r, c] = -1
+    return g
+
+
+def test_a_blockage_is_gone_when_the_lasers_see_through_it_within_the_layers_decay():
+    """Blockage: the marks that blocked the path, watched after the replan. Gone when every one
+    reads seen free, but only within the layer's decay of its last mark (a forgotten mark reads
+    as before it: maybe 0); still marked, unknown, or off the layer: not gone. One try per
+    call that says gone, ``tries`` at most; a shortcut blocked again ends them for the goal."""
+    from quadrivio_navigation.replanning import Blockage, blocking_marks
+
+    why, under = blocking_marks(PATH, (0.0, 0.0, 0.0), local_with((8.04, 0.13)), FP, 25.0)
+    assert why and len(under) == 1 and np.allclose(under[0], (8.05, 0.15))  # the marked cell's centre
+
+    b = Blockage(decay=15.0, tries=2)
+    assert not b.active and not b.gone(_layer(), 0.0)
+    b.start(under, 10.0)
+    assert b.active
+    assert not b.gone(_layer(marked=[(8.05, 0.15)]), 11.0)  # still there (its last mark now 11 s)
+    assert not b.gone(_layer(unknown=[(8.05, 0.15)]), 12.0)  # cannot say
+    assert b.gone(_layer(), 25.9) and b.active  # seen through 14.9 s after its last mark: gone (one try)
+    assert b.gone(_layer(), 25.95) and not b.active  # the second and last try
+    b.start(under, 10.0)
+    assert not b.gone(_layer(), 26.0) and not b.active  # 16 s after the mark: forgotten or seen through?
+    far = Blockage(15.0)
+    far.start(np.array([[40.0, 0.0]]), 0.0)  # off the layer: the vehicle went on
+    assert not far.gone(_layer(), 1.0) and not far.active
+    never = Blockage(0.0)  # a layer that never forgets: seen free is seen through
+    never.start(under, 0.0)
+    assert never.gone(_layer(), 1000.0)
+
+    # a shortcut taken, then blocked again: no more shortcuts for this goal
+    b = Blockage(15.0)
+    b.start(under, 0.0)
+    assert b.gone(_layer(), 1.0)
+    b.taken()
+    assert not b.active
+    b.start(under, 5.0)  # blocked again on the shortcut
+    assert not b.active and not b.gone(_layer(), 6.0)
+    b.new_goal()
+    b.start(under, 7.0)
+    assert b.active and b.gone(_layer(), 8.0)
+
+
+def test_a_shortcut_is_taken_when_it_is_shorter_by_a_fraction_and_a_distance():
+    from quadrivio_navigation.replanning import path_length, remaining_length, shorter
+
+    assert abs(remaining_length(PATH, (10.0, 0.3, 0.0)) - 19.9) < 1e-9  # from x = 10 to the last pose, 29.9
+    assert abs(path_length(PATH[:11], (1.0, 1.0)) - 2.0) < 1e-9  # 1 m of poses, then 1 m on to the end
+    assert path_length(np.zeros((0, 3)), (1.0, 1.0)) == 0.0
+    assert shorter(40.0, 90.0, 0.2, 5.0)
+    assert not shorter(75.0, 90.0, 0.2, 5.0)  # 17 % shorter: not enough
+    assert not shorter(20.0, 24.0, 0.2, 5.0)  # 17 %, 4 m
+    assert not shorter(1.0, 90.0, 0.0, 5.0)  # gain 0: never
