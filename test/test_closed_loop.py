@@ -108,48 +108,6 @@ def test_a_run_whose_plan_failed_did_not_complete(tmp_path):
     assert done["completed"] is True
 
 
-def _two_cross(folder) -> str:
-    """The orchard, two people crossing the start lane ahead of the vehicle who then stand at
-    its edges, in the tree rows' gaps."""
-    data = yaml.safe_load(open(resolve("orchard_crossing")))
-    data["map"]["file"] = os.path.join(os.path.dirname(resolve("orchard_crossing")), data["map"]["file"])
-    data.update(name="two_cross", actors=[
-        {"name": "left", "kind": "person", "waypoints": [[21.75, -0.2], [21.75, 5.2]], "speed": 1.4,
-         "trigger_distance": 8.0},
-        {"name": "right", "kind": "person", "waypoints": [[23.25, 5.2], [23.25, -0.2]], "speed": 1.2,
-         "trigger_distance": 9.0}])
-    path = folder / "two_cross.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return str(path)
-
-
-def test_once_the_lasers_see_the_way_clear_again_the_vehicle_takes_it_back(tmp_path, monkeypatch):
-    """Two people cross the lane ahead: the planner replans around them, back out of the lane
-    and round the orchard (90 m). The lasers then see through where they were, and the
-    planner takes the lane again, 40 m shorter (``shortcut_gain``; 0: the detour is driven)."""
-    import dataclasses
-
-    from quadrivio_navigation.replanning import PlannerNodeParams
-
-    config, runs = closed_loop._config, {}
-    s = load_scenario(_two_cross(tmp_path))
-    for gain in (0.2, 0.0):
-        def with_gain(cls, *args, gain=gain):
-            out = config(cls, *args)
-            return dataclasses.replace(out, shortcut_gain=gain) if cls is PlannerNodeParams else out
-
-        monkeypatch.setattr(closed_loop, "_config", with_gain)
-        r = closed_loop.run(s, 1, max_duration=120.0)
-        m = metrics.compute(r.run, s.name, 1, r.wall_s, scenario_vehicle(s))
-        assert r.outcome == "completed" and m["collisions"] == 0, (r.outcome, m["collisions"])
-        runs[gain] = (r, m)
-    took, drove = runs[0.2], runs[0.0]
-    assert any("the obstacle that blocked the path is gone" in text for _, text in took[0].log), took[0].log
-    assert not any("is gone" in text for _, text in drove[0].log)
-    assert took[0].sim_s < drove[0].sim_s - 15.0, (took[0].sim_s, drove[0].sim_s)
-    assert took[1]["path_length_m"] < drove[1]["path_length_m"] - 20.0
-
-
 def test_write_run_writes_the_experiment_keys_and_plots(tmp_path):
     s = load_scenario("figure_eight")
     r = closed_loop.run(s, 0, max_duration=8.0)

@@ -168,9 +168,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
     from quadrivio_navigation.planning import Planner, PlannerParams
-    from quadrivio_navigation.replanning import (Blockage, HeldPoints, PlannerNodeParams, blocking_marks,
-                                                 known_distance, mark_discs, merge_local, path_length,
-                                                 remaining_length, replan_start, shorter)
+    from quadrivio_navigation.replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance,
+                                                 mark_discs, merge_local, replan_start)
     from quadrivio_navigation.rollover import RolloverParams
     from quadrivio_plc import protocol
     from quadrivio_plc.client import Multiplexer, PlcClientParams
@@ -276,7 +275,6 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     block_why = ""
     plan_wall: List[float] = []
     replans = 0
-    blockage = Blockage(llp.decay if layer is not None else 0.0)
 
     mounts = {f: _mount(v, f) for f in lasers}
     pose = None  # the newest prediction: (stamp, x, y, yaw, speed, sd)
@@ -349,33 +347,6 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         set_planner(t, 2, f"replanned ({why})" if why else r.note, r.planning_time, r.length)
         log(t, f"planner: {'replanned' if why else 'path'} of {r.length:.1f} m, {r.cusps} cusp(s), "
                f"{r.expansions} expansions in {r.planning_time:.2f} s")
-        new_route(poses, t)
-
-    def shortcut(t: float, start, on) -> None:
-        """The obstacle a replan drove around is seen gone: a plan on the grid ``on``, taken
-        if it is shorter enough than the rest of the detour (the planner node's rule)."""
-        nonlocal path_poses, replans
-        p = Planner(on, v, plp, heights if pnode.terrain_from_scenario else None, RolloverParams())
-        if p.check_pose(goal, "goal"):
-            return
-        prefix, start = replan_start(path_poses, start, pose[4] if pose else 0.0, 0.5, p.path_collides)
-        w0 = time.perf_counter()
-        r = p.plan(start, goal)
-        plan_wall.append(time.perf_counter() - w0)
-        if not r.ok:
-            return
-        new_len, left = path_length(prefix, start) + r.length, remaining_length(path_poses, pose[1:4])
-        if not shorter(new_len, left, pnode.shortcut_gain, pnode.shortcut_min_gain):
-            return
-        blockage.taken()
-        poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
-        path_poses = poses
-        guard_held[1] = None
-        replans += 1
-        why = "the obstacle that blocked the path is gone"
-        set_planner(t, 2, f"replanned ({why})", r.planning_time, r.length)
-        log(t, f"planner: {why}: replanned of {r.length:.1f} m, {r.cusps} cusp(s), {new_len:.1f} m to go instead "
-               f"of {left:.1f} m")
         new_route(poses, t)
 
     def on_first_estimate(t: float, e) -> None:
@@ -604,17 +575,12 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
                     plan(t, cur, merged, block_why)
             elif planner_state == 2 and path_poses is not None:
-                why, under = blocking_marks(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
-                                            known, pnode.known_tolerance)
-                if why:
-                    blockage.start(under, t)  # watched, once driven around, until the lasers see through it
+                why = blocked_reason(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
+                                     known, pnode.known_tolerance)
                 hs = guard_held[1]
                 held_why = not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry
                 if held_why:
                     why = f"the obstacle guard has held the vehicle for {t - hs:.0f} s"
-                elif not why and blockage.active and t - last_try >= pnode.retry and blockage.gone(local_grid, t):
-                    last_try = t
-                    shortcut(t, cur, merge_local(grid, local_grid, known, pnode.known_tolerance))
                 if why:
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
                     if held_why:

@@ -53,18 +53,16 @@ def new_marks(local: Grid, static: Optional[Grid] = None, known: Optional[np.nda
     return pts[keep]
 
 
-def blocking_marks(poses: np.ndarray, current: Tuple[float, float, float], local: Grid, footprint,
+def blocked_reason(poses: np.ndarray, current: Tuple[float, float, float], local: Grid, footprint,
                    horizon: float, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
-                   tolerance: float = 0.5) -> Tuple[str, np.ndarray]:
+                   tolerance: float = 0.5) -> str:
     """Why the path from the pose nearest ``current`` on, for ``horizon`` metres, is blocked
-    by the local grid's marks that the static map does not hold (footprint at each pose), or
-    '', and those marks (map frame, N x 2) under the footprint at the first blocked pose."""
-    none = np.zeros((0, 2))
+    by the local grid's marks that the static map does not hold (footprint at each pose), or ''."""
     if len(poses) < 2:
-        return "", none
+        return ""
     pts = new_marks(local, static, known, tolerance)
     if len(pts) == 0:
-        return "", none
+        return ""
     i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
     seg = np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))
     s = np.concatenate([[0.0], np.cumsum(seg)])
@@ -74,117 +72,10 @@ def blocking_marks(poses: np.ndarray, current: Tuple[float, float, float], local
         x, y, th = poses[i]
         near = pts[np.abs(pts[:, 0] - x) + np.abs(pts[:, 1] - y) < 2.0 * reach]
         if len(near) and inside(footprint, near, x, y, th).any():
-            under = near[inside(footprint, near, x, y, th)]
-            p = under[0]
+            p = near[inside(footprint, near, x, y, th)][0]
             return (f"the path is blocked {s[i] - s[i0]:.1f} m ahead by an obstacle the map does not hold, at "
-                    f"({p[0]:.1f}, {p[1]:.1f})"), under
-    return "", none
-
-
-def blocked_reason(poses: np.ndarray, current: Tuple[float, float, float], local: Grid, footprint,
-                   horizon: float, static: Optional[Grid] = None, known: Optional[np.ndarray] = None,
-                   tolerance: float = 0.5) -> str:
-    """:func:`blocking_marks`' reason alone."""
-    return blocking_marks(poses, current, local, footprint, horizon, static, known, tolerance)[0]
-
-
-def path_length(poses: np.ndarray, end=None) -> float:
-    """Arc length [m] of ``poses`` (N x 2 or more), and on to ``end`` (x, y, ...) if given."""
-    pts = np.asarray(poses, float)[:, :2] if len(poses) else np.zeros((0, 2))
-    if end is not None and len(pts):
-        pts = np.vstack([pts, [end[0], end[1]]])
-    return float(np.sum(np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1])))) if len(pts) > 1 else 0.0
-
-
-def remaining_length(poses: Optional[np.ndarray], current: Tuple[float, float, float]) -> float:
-    """Arc length [m] of ``poses`` from the pose nearest ``current`` to the end."""
-    if poses is None or len(poses) < 2:
-        return 0.0
-    i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
-    return float(np.sum(np.hypot(np.diff(poses[i0:, 0]), np.diff(poses[i0:, 1]))))
-
-
-class Blockage:
-    """What blocked the path the vehicle now drives around, watched on the local layer until
-    the lasers see through it (people who crossed a lane and walked on: the detour round the
-    orchard was 35 m longer than the lane; a vehicle parked in it stays).
-
-    :meth:`gone` is true when every blocking mark's cell reads seen free (0) on the layer.
-    The layer also forgets a mark not seen again for its ``decay`` s (it left the lasers'
-    view), and a forgotten cell reads as it did before the mark, which may be 0: so a cell
-    counts as seen through only within ``decay`` s of the last time it read marked; past
-    that, or off the layer, or unknown (-1), nothing can be said and the watch ends (a
-    layer that never forgets, ``decay`` 0, is believed). At most ``tries`` shorter-path
-    attempts per blockage (each is a plan).
-
-    A way taken back that is blocked again (a person pacing across the lane, who is gone
-    from where they blocked it and back a few seconds later) ends the shortcuts for the
-    goal: the vehicle drove back and forth between the lane and the detour for 190 s
-    without them, and did not arrive."""
-
-    def __init__(self, decay: float, tries: int = 5) -> None:
-        self.decay = decay
-        self.tries = tries
-        self.points = np.zeros((0, 2))
-        self.marked_at = np.zeros(0)
-        self.left = 0
-        self.on_shortcut = False  # the path followed is a shortcut's
-        self.spent = False  # a shortcut was blocked again: none more for this goal
-
-    @property
-    def active(self) -> bool:
-        return len(self.points) > 0 and self.left > 0 and not self.spent
-
-    def start(self, points: np.ndarray, t: float) -> None:
-        """The path is blocked by ``points`` (map) at ``t``: the replan drives around them."""
-        if self.on_shortcut:
-            self.spent, self.on_shortcut = True, False
-        self.points = np.asarray(points, float).reshape(-1, 2)
-        self.marked_at = np.full(len(self.points), float(t))
-        self.left = self.tries
-
-    def taken(self) -> None:
-        """A shortcut is now the path."""
-        self.clear()
-        self.on_shortcut = True
-
-    def new_goal(self) -> None:
-        self.clear()
-        self.on_shortcut = self.spent = False
-
-    def clear(self) -> None:
-        self.points, self.marked_at, self.left = np.zeros((0, 2)), np.zeros(0), 0
-
-    def gone(self, local: Grid, t: float) -> bool:
-        """Whether the lasers now see through every blocking mark (see the class); an attempt
-        is counted when true."""
-        if not self.active:
-            return False
-        points, marked_at = self.points, self.marked_at  # a planner node's worker may start or clear meanwhile
-        gx, gy, _ = local.to_grid_frame(points[:, 0], points[:, 1])
-        col = np.floor(np.asarray(gx) / local.resolution).astype(int)
-        row = np.floor(np.asarray(gy) / local.resolution).astype(int)
-        h, w = local.data.shape
-        on = (row >= 0) & (col >= 0) & (row < h) & (col < w)
-        if not on.all():
-            self.clear()  # the vehicle went on: no longer in view of the layer
-            return False
-        v = local.data[row, col]
-        marked = v >= 100
-        marked_at[marked] = t
-        if marked.any() or (v < 0).any():
-            return False
-        if self.decay > 0.0 and np.any(t - marked_at >= self.decay):
-            self.clear()  # forgotten or seen through: the layer cannot say which
-            return False
-        self.left -= 1
-        return True
-
-
-def shorter(new_length: float, remaining: float, gain: float, min_gain: float) -> bool:
-    """Whether a route of ``new_length`` [m] is worth taking over the ``remaining`` one: at
-    least ``gain`` (a fraction) and ``min_gain`` metres shorter (a switch may cost a cusp)."""
-    return gain > 0.0 and new_length <= (1.0 - gain) * remaining and remaining - new_length >= min_gain
+                    f"({p[0]:.1f}, {p[1]:.1f})")
+    return ""
 
 
 def merge_local(static: Grid, local: Grid, known: Optional[np.ndarray] = None, tolerance: float = 0.5) -> Grid:
@@ -319,13 +210,6 @@ class PlannerNodeParams:
                                   doc="a replan because the guard held the vehicle keeps this far from the points it "
                                       "held it for (the guard's creep_margin: nearer, it lets the vehicle creep no "
                                       "further)")
-    shortcut_gain: float = param(0.2, lo=0.0, hi=0.9,
-                                 doc="after a replan around an obstacle that the lasers then see gone, take a new "
-                                     "plan at least this fraction shorter than the rest of the detour (0: never)")
-    shortcut_min_gain: float = param(5.0, lo=0.0, hi=1000.0, unit="m", doc="...and at least this much shorter")
-    layer_decay: float = param(15.0, lo=0.0, hi=600.0, unit="s",
-                               doc="the local layer's decay (a mark not seen again this long is forgotten): a cell "
-                                   "reads seen through only within this of its last mark")
     known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
                                    doc="local marks this close to the map's obstacles are those obstacles (the marks "
                                        "lie where the estimated pose puts them: the localization's error included)")

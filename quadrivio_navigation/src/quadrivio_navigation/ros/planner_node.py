@@ -12,10 +12,6 @@ a scenario's ``planner:`` section overrides), and:
 * ``~check_rate`` (Hz, 2; 0: never), ``~check_horizon`` (m, 25), ``~retry`` (s, 2): how
   often the remaining path is checked against ``local_obstacles``, how far ahead, and how
   often a blocked vehicle tries again.
-* ``~shortcut_gain`` (0.2; 0: never), ``~shortcut_min_gain`` (m, 5): once the lasers see
-  through what a replan drove around, a new plan is taken if that much shorter than the
-  rest of the path (:class:`quadrivio_navigation.replanning.Blockage`; ``local_layer/decay``
-  or ``~layer_decay`` says how long a seen-free cell proves it).
 
 Subscribes: ``map`` (nav_msgs/OccupancyGrid), ``move_base_simple/goal``
 (geometry_msgs/PoseStamped, rviz's 2D Nav Goal; a new goal replans at once, cancelling a
@@ -58,8 +54,8 @@ from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult
-from ..replanning import (Blockage, HeldPoints, PlannerNodeParams, blocking_marks, known_distance, mark_discs,
-                          merge_local, overtaken, path_length, remaining_length, replan_start, shorter)
+from ..replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs, merge_local,
+                          overtaken, replan_start)
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 from .site_inputs import scenario_terrain, site_frame
@@ -122,8 +118,6 @@ class PlannerNode:
         self.last_try = -math.inf
         self.replans = 0
         self.block_why = ""  # what blocked the path (BLOCKED retries with it)
-        # what a replan drove around, until the lasers see through it (local_layer's decay, if it runs)
-        self.blockage = Blockage(float(rospy.get_param("local_layer/decay", self.node_params.layer_decay)))
         self.replan_time = self.p.budget + 1.5  # [s] wall, a replan's (building the map's planner included)
         if self.node_params.check_rate > 0.0:
             rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
@@ -194,20 +188,13 @@ class PlannerNode:
             return
         if st != PlannerStatus.FOUND or self.path_poses is None:
             return
-        why, under = blocking_marks(self.path_poses, self.current, self.local, self.planner.footprint,
-                                    self.node_params.check_horizon, self.static_grid, self.known,
-                                    self.node_params.known_tolerance)
+        why = blocked_reason(self.path_poses, self.current, self.local, self.planner.footprint,
+                             self.node_params.check_horizon, self.static_grid, self.known, self.node_params.known_tolerance)
         now = rospy.get_time()
-        if why:
-            self.blockage.start(under, now)  # watched, once driven around, until the lasers see through it
         if not why and self.held_since is not None and now - self.held_since >= self.node_params.held_replan and \
                 now - self.last_try >= self.node_params.retry:
             why = f"the obstacle guard has held the vehicle for {now - self.held_since:.0f} s"
             self.held_replan = True
-        elif not why and self.blockage.active and now - self.last_try >= self.node_params.retry and \
-                self.blockage.gone(self.local, now):
-            self.last_try = now
-            self.jobs.put(("shortcut", "the obstacle that blocked the path is gone"))
         if why:
             self.jobs.put(("replan", why))
 
@@ -233,9 +220,6 @@ class PlannerNode:
                 elif kind == "replan":
                     if self.jobs.empty():  # a newer goal or map first
                         self._replan(item)
-                elif kind == "shortcut":
-                    if self.jobs.empty():
-                        self._shortcut(item)
                 else:
                     # only the newest goal matters
                     while True:
@@ -305,42 +289,6 @@ class PlannerNode:
         rospy.loginfo("planner: replanned around the obstacle in %.2f s: %.1f m, %d cusp(s)",
                       time.monotonic() - t, r.length, r.cusps)
 
-    def _shortcut(self, why: str) -> None:
-        """What the path was replanned around is seen gone: a plan from the predicted pose on
-        the map with the local layer's marks, taken if it is ``~shortcut_gain`` and
-        ``~shortcut_min_gain`` shorter than the rest of the path (:class:`.Blockage`). A plan
-        that fails or is no shorter changes nothing: the path stays, and so does the status."""
-        if self.goal is None or self.current is None or self.static_grid is None or self.local is None or \
-                self.status.state != PlannerStatus.FOUND:
-            return
-        goal, problem = self._goal_pose(self.goal)
-        if problem:
-            return
-        merged = merge_local(self.static_grid, self.local, self.known, self.node_params.known_tolerance)
-        t = time.monotonic()
-        planner = Planner(merged, self.vehicle, self.p, self.heights, self.rollover)
-        if planner.check_pose(goal, "goal"):
-            return
-        prefix, start = self._replan_start(planner)
-        r = planner.plan(start, goal, None, cancelled=self.cancel.is_set)
-        if self.cancel.is_set() or not r.ok or self._overtaken(prefix, start):
-            return
-        new_len, left = path_length(prefix, start) + r.length, remaining_length(self.path_poses, self.current)
-        if not shorter(new_len, left, self.node_params.shortcut_gain, self.node_params.shortcut_min_gain):
-            rospy.loginfo("planner: %s, but the way past it is no shorter (%.1f m against %.1f m): the path stays",
-                          why, new_len, left)
-            return
-        self.blockage.taken()
-        self.replans += 1
-        poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
-        self._publish_path(path_msg(poses, self.node_params.frame_id, rospy.Time.now()))
-        self.path_poses = poses
-        start_msg = pose_stamped(*start, self.node_params.frame_id, rospy.Time.now())
-        self._set_status(PlannerStatus.FOUND, f"replanned ({why})" + (f"; {r.note}" if r.note else ""), start_msg,
-                         self.goal, r)
-        rospy.logwarn("planner: %s: replanned in %.2f s, %.1f m to go instead of %.1f m, %d cusp(s)", why,
-                      time.monotonic() - t, new_len, left, r.cusps)
-
     def _replan_start(self, planner: Planner):
         """(poses of the current path kept, the replan's start): see :func:`replan_start`."""
         return replan_start(self.path_poses, self.current, self.speed, self.replan_time + 0.5, planner.path_collides)
@@ -383,7 +331,6 @@ class PlannerNode:
         return pose, ""
 
     def _plan_goal(self, m: PoseStamped) -> None:
-        self.blockage.new_goal()
         goal, problem = self._goal_pose(m)
         if problem:
             return self._fail(problem, m)
