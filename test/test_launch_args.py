@@ -71,6 +71,23 @@ def test_a_launch_sets_the_scenario_and_seed_fresh(launch, argv):
     assert params.get("/run/seed") == (4 if "seed:=4" in argv else None)
 
 
+@pytest.mark.parametrize("launch", ["sim.launch", "real.launch"])
+def test_scenario_takes_a_path_to_a_yaml_as_experiment_does(launch, tmp_path):
+    """``scenario:=/some/where/mine.yaml`` loads that file (it looked for
+    scenarios//some/where/mine.yaml.yaml); a name still comes from scenarios/."""
+    import roslaunch.config
+    import rospkg
+    import yaml
+
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(yaml.safe_dump({"name": "mine", "seed": 3}))
+    path = rospkg.RosPack().get_path("quadrivio") + "/launch/" + launch
+    for arg, name, source in ((str(mine), "mine", str(mine)), ("orchard", "orchard", "/scenarios/orchard.yaml")):
+        cfg = roslaunch.config.load_config_default([(path, [f"scenario:={arg}"])], None, verbose=False)
+        params = {k: v.value for k, v in cfg.params.items()}
+        assert params["/scenario/name"] == name and params["/scenario/source"].endswith(source)
+
+
 def test_a_scenarios_vehicle_reaches_the_nodes_and_the_urdf(tmp_path):
     """sim.launch scenario_file:=F with a vehicle: section: the overrides are on
     /scenario/vehicle (read over /vehicle by every node, the predictor included) and in
