@@ -69,6 +69,27 @@ def test_planned_metrics():
     assert all(compute(reference)[k] is None for k in PLANNED_KEYS)
 
 
+def test_an_actor_standing_where_the_vehicle_starts_is_refused(tmp_path):
+    """A person 0.5 m ahead of the spawn overlaps the vehicle's body at t = 0: refused with
+    the actor's name. Beside it, or a box that only comes near, loads."""
+    bad = tmp_path / "bad.yaml"
+    for actor, refused in (("{name: p, kind: person, waypoints: [[0.5, 0.0]]}", True),
+                           ("{name: p, kind: person, waypoints: [[2.8, 0.0], [9.0, 0.0]]}", True),  # on its front (2.665)
+                           ("{name: p, kind: person, waypoints: [[3.0, 0.0], [9.0, 0.0]]}", False),  # 0.035 m ahead
+                           ("{name: p, kind: person, waypoints: [[0.5, 1.2]]}", False),
+                           ("{name: v, kind: vehicle, waypoints: [[0.0, 2.0]], yaw: 0.0}", False),
+                           ("{name: v, kind: vehicle, waypoints: [[0.0, 1.5]], yaw: 1.5708}", True),
+                           ("{name: barn, kind: object, size: [20, 20, 3], waypoints: [[0.0, 0.0]]}", True)):
+        bad.write_text(f"name: bad\nsim: {{spawn: {{x: 1.0, y: 0.0, yaw: 0.0}}}}\nactors: [{actor}]\n")
+        if refused:
+            with pytest.raises(ConfigError, match="actor '.*' stands where the vehicle starts"):
+                load_scenario(str(bad))
+        else:
+            assert load_scenario(str(bad)).name == "bad"
+    for name in ("person_on_path", "orchard_blocked", "orchard_crossing", "dog_runs_out"):
+        load_scenario(name)  # the shipped ones load
+
+
 def test_bad_scenarios_name_the_problem(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: bad\nfollower: {profile: {speed: -3.0}}\n")
