@@ -671,7 +671,8 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
 
     put("metrics.json", json.dumps(m, indent=2, default=float) + "\n")
     put("run_info.json", json.dumps({"scenario": s.name, "scenario_file": s.path, "seed": seed, "runner": "in_process",
-                                     "outcome": r.outcome, "end": s.run.end, "sim_duration_s": r.sim_s, "wall_duration_s": r.wall_s,
+                                     "outcome": r.outcome, "end": s.run.end, "sim_duration_s": r.sim_s,
+                                     "wall_duration_s": r.wall_s,
                                      "cpu_s": r.cpu_s, "counters": r.counters,
                                      "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")},
                                     indent=2, default=float) + "\n")
@@ -684,13 +685,13 @@ def write_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=Non
 def plot_run(r: ClosedLoopResult, s: Scenario, seed: int, out: str, vehicle=None) -> List[str]:
     """A run's plots (trajectory, errors, control, calibration, guard) in ``out``, and a
     picture of each of the guard's first stops (``stops/``, :mod:`quadrivio.stop_views`)."""
+    import os
+
     from quadrivio_description.vehicle import load_vehicle
     from quadrivio_navigation.guard import GuardParams
 
     from .plots import all_plots
     from .stop_views import add_world, write_views
-
-    import os
 
     os.makedirs(out, exist_ok=True)
     title = f"{s.name}, seed {seed} (in process)"

@@ -169,12 +169,13 @@ def load_scenario(name_or_path: str) -> Scenario:
     from quadrivio_sim.actors import load_actors
 
     actors = load_actors(data.get("actors"), path)  # ConfigError naming the actor and the key
-    if actors:
-        _check_actors_clear_of_start(data, actors, path)
     if checked.get("guard") is not None and checked["guard"].zone:
         _check_zone_holds_start(data, checked["guard"].zone, path)
     _check_map(data, path)
-    return Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
+    s = Scenario(data["name"], path, seed, str(data.get("description", "")), data, run)
+    if actors:
+        _check_actors_clear_of_start(s, actors)
+    return s
 
 
 def _check_zone_holds_start(data: Dict[str, Any], zone, path: str) -> None:
@@ -190,29 +191,22 @@ def _check_zone_holds_start(data: Dict[str, Any], zone, path: str) -> None:
                           "would never move")
 
 
-def _check_actors_clear_of_start(data: Dict[str, Any], actors, path: str) -> None:
+def _check_actors_clear_of_start(s: "Scenario", actors) -> None:
     """No actor may stand where the vehicle starts: their bodies would overlap at t = 0 and
     the physics push them apart (a person 0.5 m ahead of the spawn turned the vehicle 9 deg,
     counted a contact, and the run aborted). Checked with the actor as it stands at t = 0
     (its first waypoint and heading) against the body of the scenario's vehicle at sim.spawn."""
-    import math
-
     import numpy as np
 
-    from quadrivio_description.vehicle import load_vehicle, with_overrides
     from quadrivio_navigation.costmap import Footprint
     from quadrivio_navigation.fields import inside
     from quadrivio_navigation.guard import points_in_polygon
     from quadrivio_sim.actors import ActorMotion, footprint_polygon
 
-    spawn = (data.get("sim") or {}).get("spawn") or {}
+    spawn = (s.data.get("sim") or {}).get("spawn") or {}
     x, y, yaw = (float(spawn.get(k, 0.0)) for k in ("x", "y", "yaw"))
-    v = with_overrides(load_vehicle(), data.get("vehicle"), f"{path}: vehicle")
-    fp = Footprint.from_vehicle(v)
-    c, s = math.cos(yaw), math.sin(yaw)
-    corners = np.array([[x + c * u - s * w, y + s * u + c * w]
-                        for u, w in ((fp.front, fp.left), (-fp.rear, fp.left), (-fp.rear, -fp.right),
-                                     (fp.front, -fp.right))])
+    fp = Footprint.from_vehicle(vehicle(s))
+    corners = fp.corners(x, y, yaw)
     for a in actors:
         pose = ActorMotion(a).pose(0.0)
         poly = np.array(footprint_polygon(a.geometry, a.dims, pose.x, pose.y, pose.yaw))
@@ -221,7 +215,7 @@ def _check_actors_clear_of_start(data: Dict[str, Any], actors, path: str) -> Non
         edges = np.concatenate([np.linspace(p, q, 12, endpoint=False) for p, q in zip(poly, np.roll(poly, -1, 0))])
         pts = np.vstack([edges, [[pose.x, pose.y]]])
         if inside(fp, pts, x, y, yaw).any() or points_in_polygon(corners, poly).any():
-            raise ConfigError(f"{path}: actor '{a.name}' stands where the vehicle starts: at ({pose.x:g}, "
+            raise ConfigError(f"{s.path}: actor '{a.name}' stands where the vehicle starts: at ({pose.x:g}, "
                               f"{pose.y:g}) its body overlaps the vehicle's at sim.spawn ({x:g}, {y:g}); move its "
                               f"first waypoint")
 

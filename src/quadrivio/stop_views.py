@@ -145,14 +145,23 @@ def swept_mask(fp, poses: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndar
 _MOVING = re.compile(r"moving obstacle \(([0-9.]+) m/s, where it may be within ([0-9.]+) s\)")
 
 
-def moving_sources(scene: StopScene, margin: float = 0.5) -> np.ndarray:
-    """For a stop on a moving obstacle's predicted place (the guard's reason names its speed
-    and horizon, and its nearest point is no return): the returns it may have come from,
-    those within speed x horizon (+ ``margin``) of that point; empty otherwise."""
+def moving_reach(scene: StopScene) -> Optional[Tuple[float, float]]:
+    """(speed [m/s], horizon [s]) of a stop on a moving obstacle's predicted place: the guard's
+    reason names them, and its nearest point is none of the returns; None otherwise."""
     m = _MOVING.search(scene.reason or "")
     if m is None or off_returns(scene) is None:
+        return None
+    return float(m.group(1)), float(m.group(2))
+
+
+def moving_sources(scene: StopScene, margin: float = 0.5) -> np.ndarray:
+    """For a stop on a moving obstacle's predicted place (:func:`moving_reach`): the returns
+    it may have come from, those within speed x horizon (+ ``margin``) of that point; empty
+    otherwise."""
+    mr = moving_reach(scene)
+    if mr is None:
         return np.zeros((0, 2))
-    reach = float(m.group(1)) * float(m.group(2)) + margin
+    reach = mr[0] * mr[1] + margin
     allp = np.concatenate([p for p in scene.scans.values() if len(p)])
     return allp[np.hypot(allp[:, 0] - scene.nearest[0], allp[:, 1] - scene.nearest[1]) <= reach]
 
@@ -217,10 +226,9 @@ def draw(scene: StopScene, vehicle, padding: float, path: str, title: str = "", 
                 label=f"{topic} ({len(pts)} returns, {1e3 * age:.0f} ms before)")
     if scene.nearest is not None:
         ax.plot(*scene.nearest, "X", color="k", ms=11, mec="w", label="nearest (the guard's)")
-    off = off_returns(scene)
-    moving = _MOVING.search(scene.reason or "")
-    if off is not None and moving is not None:  # a moving thing's predicted place: where it may have come from
-        speed, horizon = float(moving.group(1)), float(moving.group(2))
+    off, moving = off_returns(scene), moving_reach(scene)
+    if moving is not None:  # a moving thing's predicted place: where it may have come from
+        speed, horizon = moving
         a = np.linspace(0.0, 2.0 * math.pi, 121)
         ax.plot(scene.nearest[0] + speed * horizon * np.cos(a), scene.nearest[1] + speed * horizon * np.sin(a), "k:",
                 lw=0.9, label=f"reach of a thing at {speed:.1f} m/s in {horizon:.1f} s")
