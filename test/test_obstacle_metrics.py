@@ -152,6 +152,32 @@ def test_protective_stops_judged_by_the_ground_truth():
     assert obstacle_metrics(far, V)["false_stops"] == 1
 
 
+def test_a_stop_for_a_person_walking_at_the_path_who_stops_short_of_it_is_anticipated_not_false():
+    """A person walks straight at the path and stops at its edge to let the vehicle pass:
+    by their true future nothing came (a "false" stop before), but by the way they moved
+    when the guard stopped they were coming, which no guard can tell from someone who will
+    step on: anticipated. Standing there, or walking away from the path, it is false."""
+    gt = straight_run(t_end=10.0, speed=1.0, stop_at=5.0)
+    rows = [[0.0, 0, 1.5, 9.0, 1.0, 0.0, 1, 1.0, 0, 1.0, 0, 0], [5.0, 2, 0.0, 0.8, 1.2, 4.97, 1, 1.0, 0, 1.0, 0, 0],
+            [7.0, 0, 1.5, 9.0, 0.3, 0.0, 1, 1.0, 0, 0.0, 0, 0]]
+    x = 5.0 + FP.front + 0.5
+
+    def walk(y_before):  # at y_before 1 s before the stop, at 2.5 m (beside the field) from the stop on
+        return [(4.0, [("bob", "person", "cylinder", x, y_before, 0.0, 0.6, 0.6)]),
+                (5.0, [("bob", "person", "cylinder", x, 2.5, 0.0, 0.6, 0.6)]),
+                (10.0, [("bob", "person", "cylinder", x, 2.5, 0.0, 0.6, 0.6)])]
+
+    def judged(actors):
+        run = RunData(gt, Series.empty(), Series.empty(), Series.empty(), None, Series.empty(),
+                      guard=guard_series(rows), actors=actors, contacts=[])
+        m = obstacle_metrics(run, V)
+        return m["false_stops"], m["anticipated_stops"]
+
+    assert judged(walk(3.7)) == (0, 1)  # at 1.2 m/s toward the path
+    assert judged(walk(1.3)) == (1, 0)  # away from it
+    assert judged(walk(2.5)) == (1, 0)  # standing there
+
+
 def test_a_recording_without_ground_truth_cannot_judge_its_stops():
     """The vehicle's own bag: the stops are counted and drawn at the estimated pose, but
     whether they were false is unknown (null), not 0."""

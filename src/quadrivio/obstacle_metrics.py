@@ -19,8 +19,10 @@
   driving on, that footprint swept ``speed * tau`` further after ``tau`` seconds: nothing
   was there to stop for; ``anticipated_stops``: those for an actor that was not in that
   field yet but would have entered it had the vehicle not stopped (a person about to cross
-  just beyond the field); both null when a recording without ground truth has stops (they
-  cannot be judged there);
+  just beyond the field), by its true motion or by the way it moved at the stop (its
+  velocity over the last ``MOTION_DT`` s held: a person walking at the path who stopped
+  short of it, which no guard can know beforehand); both null when a recording without
+  ground truth has stops (they cannot be judged there);
 * ``time_blocked_s``: sim time the guard held the vehicle (STOP, HOLD, FAULT, or a speed
   limit below 0.05 m/s) while the request was to move;
 * ``stop_latencies_ms``: for each protective stop, from the stamp of the scan that showed
@@ -65,6 +67,18 @@ def _outline_points(shape: str, x: float, y: float, yaw: float, length: float, w
     p = np.concatenate(pts)
     c, s = math.cos(yaw), math.sin(yaw)
     return np.column_stack([x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]])
+
+
+MOTION_DT = 0.2  # [s] an actor's velocity at a stop: its motion over this long before it
+
+
+def actors_moving_on(actors, t: float, tau: float, dt: float = MOTION_DT) -> np.ndarray:
+    """Every actor's outline points ``tau`` s after ``t`` had each kept the velocity it had
+    over the ``dt`` s before ``t`` (what an observer at ``t`` could extrapolate)."""
+    now, before = actors_at(actors, t), actors_at(actors, t - dt)
+    if len(now) != len(before):
+        return now
+    return now + (now - before) * (tau / dt)
 
 
 def actors_at(actors, t: float) -> np.ndarray:
@@ -260,8 +274,10 @@ def obstacle_metrics(run, vehicle, tolerance: float = 0.5, anticipation: float =
             if len(fixed):
                 pts = np.concatenate([pts, fixed]) if len(pts) else fixed
             if not in_field(pts):
-                later = run.actors and any(in_field(actors_at(run.actors, t + tau), speed * tau)
-                                           for tau in np.arange(0.1, anticipation + 1e-9, 0.1))
+                taus = np.arange(0.1, anticipation + 1e-9, 0.1)
+                later = run.actors and (any(in_field(actors_at(run.actors, t + tau), speed * tau) for tau in taus)
+                                        or any(in_field(actors_moving_on(run.actors, t, tau), speed * tau)
+                                               for tau in taus))
                 if later:
                     anticipated += 1
                 else:
