@@ -17,6 +17,7 @@ into messages.
 
 from __future__ import annotations
 
+import math
 import zlib
 from collections import deque
 from dataclasses import dataclass
@@ -164,6 +165,8 @@ class Simulator:
         self.world = World(vehicle, urdf_text, params.physics, params.terrain, self.rng, params.obstacles,
                            params.spawn, blocks, params.map.obstacle_height, params.actors, frame)
         self.actors = [ActorMotion(a) for a in params.actors]
+        b = vehicle.body  # base_link to the body's farthest corner: where an actor may come near it
+        self.vehicle_reach = math.hypot(max(b.length - b.rear_overhang, b.rear_overhang), 0.5 * b.width)
         self.touching: List[int] = []
         self.contacts: List[ContactEvent] = []  # every contact of the run, in order
         self.control = LowLevelControl(actuators, vehicle, params.plc.cycle)
@@ -285,8 +288,21 @@ class Simulator:
         for k, (motion, a) in enumerate(zip(self.actors, self.params.actors)):
             before = motion.last
             pose = motion.update(self.t, (pos[0], pos[1]))
-            if before is None or (pose.x, pose.y, pose.yaw) != (before.x, before.y, before.yaw):
-                self.world.move_actor(k, pose.x, pose.y, pose.yaw, a.dims[2])
+            if before is None or (pose.x, pose.y, pose.yaw) == (before.x, before.y, before.yaw):
+                continue
+            self.world.move_actor(k, pose.x, pose.y, pose.yaw, a.dims[2])
+            # an actor does not walk into the vehicle (actors.py): near it (a cheap test of
+            # the centres first), a step closer than keep_clear and than before is taken back
+            reach = self.vehicle_reach + 0.5 * math.hypot(a.dims[0], a.dims[1]) + a.keep_clear + 0.5
+            if (pose.x - pos[0]) ** 2 + (pose.y - pos[1]) ** 2 > reach * reach:
+                continue
+            gap = self.world.actor_gap(k, a.keep_clear)
+            if gap < a.keep_clear:
+                self.world.move_actor(k, before.x, before.y, before.yaw, a.dims[2])
+                if gap < self.world.actor_gap(k, a.keep_clear) - 1e-9:
+                    motion.hold_back()  # it would have come closer: it waits
+                    continue
+                self.world.move_actor(k, pose.x, pose.y, pose.yaw, a.dims[2])  # along or away: on
 
     def _contact(self, t: float, body: int, v) -> ContactEvent:
         name, kind = self.world.body_names.get(body, (f"body {body}", "unknown"))
@@ -296,7 +312,7 @@ class Simulator:
     def _actors(self, t: float) -> List[ActorSample]:
         out = []
         for motion, a in zip(self.actors, self.params.actors):
-            p = motion.pose(t)
+            p = motion.last if motion.waiting else motion.pose(t)  # waiting: where it stands
             out.append(ActorSample(a.name, a.kind, a.geometry, p.x, p.y, p.yaw, a.dims, p.speed))
         for k, o in enumerate(self.params.obstacles):
             dims = (2.0 * o.size[0], 2.0 * o.size[0], o.size[2]) if o.kind == "cylinder" else tuple(o.size)

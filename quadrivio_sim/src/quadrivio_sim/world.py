@@ -250,6 +250,12 @@ class World:
         for body, cid in zip(self.actor_ids[k], (self.cid, self.rays_cid)):
             pybullet.resetBasePositionAndOrientation(body, pos, q, physicsClientId=cid)
 
+    def actor_gap(self, k: int, within: float) -> float:
+        """The distance from actor ``k``'s body to the vehicle's (any link) as they stand,
+        when under ``within`` [m]; inf otherwise (0 or less: touching)."""
+        pts = pybullet.getClosestPoints(self.actor_ids[k][0], self.robot, within, physicsClientId=self.cid)
+        return min((c[8] for c in pts), default=math.inf)
+
     def touching(self) -> List[int]:
         """The bodies other than the ground that touch the vehicle now (their ids, sorted)."""
         pts = pybullet.getContactPoints(bodyA=self.robot, physicsClientId=self.cid)
