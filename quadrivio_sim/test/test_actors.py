@@ -165,3 +165,45 @@ def test_a_person_walking_into_the_standing_vehicles_side_waits_beside_it():
             if name == "contact":
                 contacts.append(s)
     assert contacts and contacts[0].body == "into"
+
+
+def _drive_past(y_person, enable_spheres=False):
+    """Contacts of the vehicle driving straight at 1 m/s past a person standing at (5, y)."""
+    from quadrivio_description.urdf import build_urdf
+    from quadrivio_description.vehicle import load_vehicle
+    from quadrivio_sim.actuators import load_actuators
+    from quadrivio_sim.paths import package_file
+    from quadrivio_sim.script import ScriptRow, SetpointScript
+    from test_sim_core import default_params
+    from quadrivio_sim.simulator import Simulator
+
+    vehicle = load_vehicle()
+    actuators = load_actuators(package_file("config", "actuators.yaml"))
+    actors = [{"name": "bystander", "kind": "person", "waypoints": [[5.0, y_person]]}]
+    sim = Simulator(default_params(actors=actors), vehicle, actuators, build_urdf(vehicle))
+    if enable_spheres:  # the wheels' ground spheres meeting the person too, as before
+        for j in sim.world.wheels:
+            sim.world.pb.setCollisionFilterPair(sim.world.robot, sim.world.actor_ids[0][0], j, -1, 1)
+    sim.script = SetpointScript([ScriptRow(0.0, 1.0, 0.0, 0.0)])
+    contacts = []
+    while sim.t < 9.0:
+        contacts += [s for name, s in sim.step() if name == "contact"]
+    return vehicle, contacts
+
+
+def test_the_vehicle_touches_what_its_tyres_touch_not_what_the_wheels_spheres_reach():
+    """The wheels meet the ground as spheres of the tyre's radius, which reach 0.19 m past
+    the tyres' outer faces sideways; a person 0.17 m from the side of a passing vehicle was
+    touched by one. Now the tyres meet everything but the ground as what they are."""
+    _, contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3))
+    assert contacts == []  # 0.10 m beside the tyres: passed
+    _, contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3), enable_spheres=True)
+    assert contacts and {c.body for c in contacts} == {"bystander"}  # the control arm: the spheres reach them
+    _, contacts = _drive_past(-(0.5 * vehicle_width() - 0.05 + 0.3))
+    assert contacts and {c.body for c in contacts} == {"bystander"}  # 0.05 m inside the tyres' outer face: hit
+
+
+def vehicle_width():
+    from quadrivio_description.vehicle import load_vehicle
+
+    return load_vehicle().body.width

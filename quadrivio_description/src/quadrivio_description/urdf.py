@@ -10,6 +10,10 @@ Kinematic tree (one chain per corner, independent suspension front and rear)::
      |    |- <corner>_wheel_joint   continuous y
      |        <corner>_wheel        visual: cylinder, tyre diameter x width;
      |                              collision: sphere of the tyre radius (one contact point, cheap)
+     |                              for the ground only; the tyre's own cylinder, on the knuckle
+     |                              (front) or hub (rear), for everything else (the simulator
+     |                              filters the pairs: the sphere reaches 0.19 m past the tyre's
+     |                              outer face sideways)
      |- <sensor>_joint fixed -> gps_link, imu_link, mag_link, laser_front, laser_rear,
                                   camera_left, camera_right
 
@@ -131,6 +135,12 @@ def build_urdf(v: VehicleParams, root_inertia: bool = True) -> str:
             _joint(robot, f"{corner}_steer_joint", "revolute", f"{corner}_hub", f"{corner}_knuckle",
                    axis=(0.0, 0.0, 1.0), limits=(-lock, lock, 1e4, 10.0))
             wheel_parent = f"{corner}_knuckle"
+        # The tyre as obstacles, actors and map bodies meet it: a cylinder on the link that
+        # carries the wheel and steers with it, still while the wheel spins (the simulator
+        # keeps it off the ground and the sphere below off everything else)
+        carrier = knuckle if front else hub
+        _shape(carrier, "collision", ET.Element("cylinder", radius=f"{r:.6g}", length=f"{width:.6g}"),
+               (0.0, 0.0, 0.0), (0.5 * math.pi, 0.0, 0.0))
         wheel = ET.SubElement(robot, "link", name=f"{corner}_wheel")
         m = v.wheels.mass
         i_axis = 0.5 * m * r * r

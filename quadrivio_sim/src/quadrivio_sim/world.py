@@ -198,6 +198,7 @@ class World:
         self.robot = self._load_vehicle(urdf_text)
         self._index_joints()
         self._configure_dynamics()
+        self._filter_tyre_contacts()
         self.spawn = spawn
         self.reset(spawn)
 
@@ -251,10 +252,10 @@ class World:
             pybullet.resetBasePositionAndOrientation(body, pos, q, physicsClientId=cid)
 
     def actor_gap(self, k: int, within: float) -> float:
-        """The distance from actor ``k``'s body to the vehicle's (any link) as they stand,
+        """The distance from actor ``k``'s body to the vehicle's (body and tyres) as they stand,
         when under ``within`` [m]; inf otherwise (0 or less: touching)."""
         pts = pybullet.getClosestPoints(self.actor_ids[k][0], self.robot, within, physicsClientId=self.cid)
-        return min((c[8] for c in pts), default=math.inf)
+        return min((c[8] for c in pts if c[4] not in self.wheels), default=math.inf)  # the spheres meet the ground only
 
     def touching(self) -> List[int]:
         """The bodies other than the ground that touch the vehicle now (their ids, sorted)."""
@@ -310,6 +311,21 @@ class World:
                 return self.pb.loadURDF(path, flags=pybullet.URDF_USE_INERTIA_FROM_FILE)
             except pybullet.error as exc:
                 raise ConfigError(f"PyBullet could not load the vehicle URDF: {exc}") from exc
+
+    def _filter_tyre_contacts(self) -> None:
+        """The wheels' spheres meet the ground only, the tyres' cylinders (on the front
+        knuckles and rear hubs, urdf.py) everything but the ground: a sphere of the tyre's
+        radius reaches 0.19 m past the tyre's outer face sideways, and touched a person
+        0.17 m from the side of the vehicle."""
+        self.tyre_links: List[int] = []
+        for corner in ("front_left", "front_right", "rear_left", "rear_right"):
+            carrier = self.link_index.get(f"{corner}_knuckle" if corner.startswith("front") else f"{corner}_hub")
+            if carrier is not None:
+                self.tyre_links.append(carrier)
+                self.pb.setCollisionFilterPair(self.robot, self.ground, carrier, -1, 0)
+        for body in self.body_names:
+            for j in self.wheels:
+                self.pb.setCollisionFilterPair(self.robot, body, j, -1, 0)
 
     def _index_joints(self) -> None:
         pb = self.pb
