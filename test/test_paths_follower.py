@@ -357,3 +357,38 @@ def test_a_stale_pose_stops_the_vehicle_within_its_distance_budget_and_a_fresh_o
     c = pp.update(x0, y0, th, 0.0, pose_age=0.01, t=0.04 + 0.02 * 1000)  # the localization is back
     assert c.status == FOLLOWING and c.brake == 0.0 and not pp.waiting_pose
     assert 0.0 < c.speed <= 0.02 * 1.0 + 1e-9  # from rest, up the profile's ramp
+
+
+def test_from_a_cusp_the_handlebar_turns_before_the_vehicle_drives_off():
+    """A replan in the orchard's headland reversed at full right lock, then went forward on an
+    arc at the planning radius (2.94 m, full left lock). Driven off at once while the
+    handlebar swung across (1 s of servo), the vehicle ran wide, and on an arc at full lock
+    the pursuit had nothing left to come back with: 1.0 m off the path. Turning the handlebar
+    at rest first, it stays on the arc; the control arm (steer_first 0) runs wide."""
+    r = 2.94
+    back = []
+    for s in np.linspace(0.0, 1.5, 31):  # reversing, the body turning left (handlebar right)
+        th = s / r
+        back.append((-r * math.sin(th), -r * (1.0 - math.cos(th)), th))
+    x0, y0, th0 = back[-1]
+    fwd = []
+    for s in np.linspace(0.0, 4.0, 81)[1:]:  # forward, turning left on the same radius
+        th = th0 + s / r
+        fwd.append((x0 + r * (math.sin(th) - math.sin(th0)), y0 - r * (math.cos(th) - math.cos(th0)), th))
+    xe, ye, the = fwd[-1]
+    line = [(xe + s * math.cos(the), ye + s * math.sin(the), the) for s in np.linspace(0.0, 3.0, 31)[1:]]
+    poses = np.array(back + fwd + line)
+    route = make_route(poses, SpeedProfileParams(speed=1.5))
+    assert [s.direction for s in route.segments] == [-1, 1]
+    ahead = np.array(fwd + line)
+
+    def worst_on_the_arc(params):
+        pp, log = run_route(route, params, t_max=40.0)
+        on = log[log[:, 8] == 1]
+        return pp, max(float(np.min(np.hypot(ahead[:, 0] - x, ahead[:, 1] - y))) for x, y in on[:, 1:3])
+
+    pp, worst = worst_on_the_arc(FollowerParams())
+    assert pp.status == DONE, pp.reason
+    _, wide = worst_on_the_arc(FollowerParams(steer_first=0.0))
+    assert worst < 0.7 * wide, (worst, wide)  # measured 0.165 against 0.300 m
+    assert worst < 0.2

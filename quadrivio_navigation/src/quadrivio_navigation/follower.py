@@ -20,7 +20,12 @@ the segment's end: the profile brings the vehicle to rest at every cusp and at t
 At a cusp, once stopped (``|v| < stop_speed``) at the segment's end (reached along the path,
 whatever the sideways offset: the next segment's pure pursuit takes it up), the next
 segment starts; so it does when the vehicle stands held short of the cusp (by the
-obstacle guard) within ``cusp_tolerance`` of it. At the route's end, once stopped, the follower is DONE when it is within
+obstacle guard) within ``cusp_tolerance`` of it. From rest (a cusp, a route's start) the
+handlebar turns first: the speed setpoint stays 0 until the handlebar's is within
+``steer_first`` of what the pursuit asks (a replan's path reversed 0.16 m, then went forward
+on an arc at the planning radius; driven off at once while the handlebar swung from -0.38 to
++0.42 rad, the vehicle ran wide, and at full lock it had no authority left to come back:
+1.0 m off the path). At the route's end, once stopped, the follower is DONE when it is within
 ``goal_tolerance`` and ``heading_tolerance`` (15 deg) of the goal pose, DONE with a parking
 error (said in the reason, ``parking_error``) within twice those, and ABORTED (missed the
 goal, with the errors) beyond. A stale pose must not steer the vehicle: one older than
@@ -71,6 +76,9 @@ class FollowerParams:
     stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
     cusp_tolerance: float = param(0.6, lo=0.05, hi=10.0, unit="m",
                                   doc="held short of a cusp (by the guard), change direction within this of it")
+    steer_first: float = param(0.1, lo=0.0, hi=1.0, unit="rad",
+                               doc="from rest (a cusp, a route's start), the handlebar setpoint comes within this "
+                                   "of the pursuit's before the speed setpoint leaves 0 (0: drive off at once)")
     max_cross_track: float = param(4.0, lo=0.1, hi=100.0, unit="m", doc="abort beyond this cross-track error")
     pose_budget: float = param(0.25, lo=0.01, hi=10.0, unit="m",
                                doc="how far the vehicle may drive on the last pose before it is stale: the pose's "
@@ -310,6 +318,9 @@ class PurePursuit:
             if d < 0:
                 v_sp = min(v_sp, self.p.reverse_speed)
         v_sp *= d
+        if self.p.steer_first > 0.0 and stopped and self.sp_speed == 0.0 and \
+                abs(h - self.sp_handlebar) > self.p.steer_first:
+            v_sp = 0.0  # from rest, turn the handlebar first: off at once, an arc at full lock is lost
         v_sp, h = self._slew(v_sp, h, t)
         if t is not None:
             stalled = self._stalled(t, 0.0 if held else v_sp, x, y)
