@@ -65,7 +65,8 @@ def test_names_must_be_unique():
         load_actors({"name": "p"}, "test")
 
 
-def test_the_vehicle_hits_a_person_the_lasers_see():
+def simulator_with(actors, speed=0.0, brake=0.0):
+    """The simulator core with these actors, driving straight at ``speed`` (``brake`` on)."""
     from quadrivio_description.urdf import build_urdf
     from quadrivio_description.vehicle import load_vehicle
     from quadrivio_sim.actuators import load_actuators
@@ -75,12 +76,16 @@ def test_the_vehicle_hits_a_person_the_lasers_see():
     from quadrivio_sim.simulator import Simulator
 
     vehicle = load_vehicle()
-    actuators = load_actuators(package_file("config", "actuators.yaml"))
+    sim = Simulator(default_params(actors=actors), vehicle, load_actuators(package_file("config", "actuators.yaml")),
+                    build_urdf(vehicle))
+    sim.script = SetpointScript([ScriptRow(0.0, speed, 0.0, brake)])
+    return sim
 
+
+def test_the_vehicle_hits_a_person_the_lasers_see():
     actors = [{"name": "bob", "kind": "person", "waypoints": [[8.0, 0.0]]},
               {"name": "walker", "kind": "person", "waypoints": [[4.0, 6.0], [4.0, 12.0]], "speed": 1.0}]
-    sim = Simulator(default_params(actors=actors), vehicle, actuators, build_urdf(vehicle))
-    sim.script = SetpointScript([ScriptRow(0.0, 2.0, 0.0, 0.0)])
+    sim = simulator_with(actors, speed=2.0)
     first = None
     contacts, seen = [], []
     while sim.t < 6.0:
@@ -122,20 +127,9 @@ def test_a_person_walking_into_the_standing_vehicles_side_waits_beside_it():
     contacts, the estimate's heading 100 deg off). A person stops short of a vehicle: here
     they wait keep_clear from its body, nothing is touched, the vehicle stays where it
     stood, and one walking along its side passes."""
-    from quadrivio_description.urdf import build_urdf
-    from quadrivio_description.vehicle import load_vehicle
-    from quadrivio_sim.actuators import load_actuators
-    from quadrivio_sim.paths import package_file
-    from quadrivio_sim.script import ScriptRow, SetpointScript
-    from test_sim_core import default_params
-    from quadrivio_sim.simulator import Simulator
-
-    vehicle = load_vehicle()
-    actuators = load_actuators(package_file("config", "actuators.yaml"))
     actors = [{"name": "into", "kind": "person", "waypoints": [[0.6, 5.0], [0.6, -5.0]], "speed": 1.0},
               {"name": "along", "kind": "person", "waypoints": [[-4.0, -1.4], [6.0, -1.4]], "speed": 1.0}]
-    sim = Simulator(default_params(actors=actors), vehicle, actuators, build_urdf(vehicle))
-    sim.script = SetpointScript([ScriptRow(0.0, 0.0, 0.0, 1.0)])  # braked, standing
+    sim = simulator_with(actors, brake=1.0)  # braked, standing
     start = None
     contacts, seen = [], []
     while sim.t < 12.0:
@@ -157,9 +151,8 @@ def test_a_person_walking_into_the_standing_vehicles_side_waits_beside_it():
     # the one walking along the side, 1.4 m from base_link's centre line, went by
     assert along.last.x == pytest.approx(6.0) and along.held == 0.0
     # the control arm: an actor blind to the vehicle (the gap never found) walks into it
-    sim = Simulator(default_params(actors=actors[:1]), vehicle, actuators, build_urdf(vehicle))
+    sim = simulator_with(actors[:1], brake=1.0)
     sim.world.actor_gap = lambda k, within: math.inf
-    sim.script = SetpointScript([ScriptRow(0.0, 0.0, 0.0, 1.0)])
     while sim.t < 12.0:
         for name, s in sim.step():
             if name == "contact":
@@ -169,37 +162,25 @@ def test_a_person_walking_into_the_standing_vehicles_side_waits_beside_it():
 
 def _drive_past(y_person, enable_spheres=False):
     """Contacts of the vehicle driving straight at 1 m/s past a person standing at (5, y)."""
-    from quadrivio_description.urdf import build_urdf
-    from quadrivio_description.vehicle import load_vehicle
-    from quadrivio_sim.actuators import load_actuators
-    from quadrivio_sim.paths import package_file
-    from quadrivio_sim.script import ScriptRow, SetpointScript
-    from test_sim_core import default_params
-    from quadrivio_sim.simulator import Simulator
-
-    vehicle = load_vehicle()
-    actuators = load_actuators(package_file("config", "actuators.yaml"))
-    actors = [{"name": "bystander", "kind": "person", "waypoints": [[5.0, y_person]]}]
-    sim = Simulator(default_params(actors=actors), vehicle, actuators, build_urdf(vehicle))
+    sim = simulator_with([{"name": "bystander", "kind": "person", "waypoints": [[5.0, y_person]]}], speed=1.0)
     if enable_spheres:  # the wheels' ground spheres meeting the person too, as before
         for j in sim.world.wheels:
             sim.world.pb.setCollisionFilterPair(sim.world.robot, sim.world.actor_ids[0][0], j, -1, 1)
-    sim.script = SetpointScript([ScriptRow(0.0, 1.0, 0.0, 0.0)])
     contacts = []
     while sim.t < 9.0:
         contacts += [s for name, s in sim.step() if name == "contact"]
-    return vehicle, contacts
+    return contacts
 
 
 def test_the_vehicle_touches_what_its_tyres_touch_not_what_the_wheels_spheres_reach():
     """The wheels meet the ground as spheres of the tyre's radius, which reach 0.19 m past
     the tyres' outer faces sideways; a person 0.17 m from the side of a passing vehicle was
     touched by one. Now the tyres meet everything but the ground as what they are."""
-    _, contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3))
+    contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3))
     assert contacts == []  # 0.10 m beside the tyres: passed
-    _, contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3), enable_spheres=True)
+    contacts = _drive_past(-(0.5 * vehicle_width() + 0.10 + 0.3), enable_spheres=True)
     assert contacts and {c.body for c in contacts} == {"bystander"}  # the control arm: the spheres reach them
-    _, contacts = _drive_past(-(0.5 * vehicle_width() - 0.05 + 0.3))
+    contacts = _drive_past(-(0.5 * vehicle_width() - 0.05 + 0.3))
     assert contacts and {c.body for c in contacts} == {"bystander"}  # 0.05 m inside the tyres' outer face: hit
 
 

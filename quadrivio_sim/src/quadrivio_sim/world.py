@@ -32,6 +32,7 @@ from pybullet_utils import bullet_client
 from quadrivio_config import ConfigError, param
 from quadrivio_description.frames import matrix_from_quaternion, quaternion_from_rpy, rpy_from_quaternion
 from quadrivio_description.kinematics import ackermann_wheel_angles
+from quadrivio_description.urdf import CORNERS
 from quadrivio_description.vehicle import GRAVITY, VehicleParams
 
 from quadrivio_terrain.terrain import Heightfield, TerrainParams, build_heightfield
@@ -317,11 +318,9 @@ class World:
         knuckles and rear hubs, urdf.py) everything but the ground: a sphere of the tyre's
         radius reaches 0.19 m past the tyre's outer face sideways, and touched a person
         0.17 m from the side of the vehicle."""
-        self.tyre_links: List[int] = []
-        for corner in ("front_left", "front_right", "rear_left", "rear_right"):
+        for corner in CORNERS:
             carrier = self.link_index.get(f"{corner}_knuckle" if corner.startswith("front") else f"{corner}_hub")
             if carrier is not None:
-                self.tyre_links.append(carrier)
                 self.pb.setCollisionFilterPair(self.robot, self.ground, carrier, -1, 0)
         for body in self.body_names:
             for j in self.wheels:
@@ -341,7 +340,7 @@ class World:
             if kind != pybullet.JOINT_FIXED:
                 self.movable.append(j)
                 self.joint_names.append(name)
-        corners = ("front_left", "front_right", "rear_left", "rear_right")
+        corners = CORNERS
         try:
             self.susp = [self.joint_index[f"{c}_suspension_joint"] for c in corners]
             self.wheels = [self.joint_index[f"{c}_wheel_joint"] for c in corners]
