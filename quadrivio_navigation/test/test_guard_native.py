@@ -264,10 +264,11 @@ def test_base_on_wheels_matches_the_python_model():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_moving_obstacles_match_the_python_core(seed):
-    """A drive past trees with people crossing ahead: the tracks (tracks.py, the C++
-    MotionTracker), what the scans saw through, and the decisions on where they will be are
+    """A drive past trees with people and a tractor crossing ahead: the tracks (tracks.py, the
+    C++ MotionTracker), what the scans saw through, and the decisions on where they will be are
     the same, in the replay and through NativeGuard. Thick trunks beside the lane make
-    centroids travel that the rays' test must refuse."""
+    centroids travel that the rays' test must refuse; the tractor is found by its leading
+    corner (an end of its cluster), and a parked machine's ends must not move."""
     from test_tracks import ranges
     from quadrivio_navigation import tracks
     vehicle = load_vehicle()
@@ -278,6 +279,8 @@ def test_moving_obstacles_match_the_python_core(seed):
     people = [(float(rng.uniform(9, 20)), float(rng.choice([-1, 1])) * float(rng.uniform(0.8, 1.8)),
                float(rng.uniform(0.25, 0.35)), float(rng.uniform(0.0, 3.0))) for _ in range(3)]  # x, speed, r, start
     people[0] = (float(rng.uniform(14, 16)), 1.4, 0.3, float(rng.uniform(1.5, 2.0)))  # one steps out ~8 m ahead
+    other = np.random.default_rng(100 + seed)  # (the people's draws as they were)
+    tractor = (float(other.uniform(-6.0, 0.0)), float(other.uniform(1.0, 3.0)))  # x, start: along y = 9 at 4 m/s
     events, x, y, yaw, v = [], 0.0, 0.0, 0.0, 2.5
     for k in range(400):
         t = 1.0 + 0.02 * k
@@ -290,7 +293,9 @@ def test_moving_obstacles_match_the_python_core(seed):
                 y0 = -2.8 if u > 0 else 2.8  # from behind a tree row
                 circles.append((px, y0 + u * max(0.0, t - 1.0 - t0), r))
             fov = math.radians(270.0)
-            rr = ranges((x, y, yaw), circles, mount=(1.7, 0.0), fov=fov, rng=rng, noise=0.01)
+            tx = tractor[0] + 4.0 * max(0.0, t - tractor[1])
+            boxes = [(tx, 9.0, 0.0, 4.0, 2.0), (30.0, -4.0, 0.3, 4.0, 2.0)]  # crossing 9 m to the left; parked
+            rr = ranges((x, y, yaw), circles, mount=(1.7, 0.0), fov=fov, rng=rng, noise=0.01, boxes=boxes)
             # dropouts (NaN) and returns beyond range_max: unknown rays (-inf, something at the
             # laser's window, is an obstacle at range_min itself, and would stop the vehicle)
             odd = rng.random(len(rr)) < 0.02
@@ -301,16 +306,22 @@ def test_moving_obstacles_match_the_python_core(seed):
         w = v * math.tan(vehicle.steering.ratio * h) / vehicle.wheelbase
         x, y, yaw = x + v * math.cos(yaw) * 0.02, y + v * math.sin(yaw) * 0.02, yaw + w * 0.02
     cpp = _run(_config(p, vehicle), _script(events))
-    refused = []
-    moved_through = tracks.MotionTracker._moved_through
+    refused, ends = [], []
+    moved_through, end_moves = tracks.MotionTracker._moved_through, tracks.MotionTracker._end_moves
 
-    def counted(self, k):
-        out = moved_through(self, k)
+    def counted(self, k, i):
+        out = moved_through(self, k, i)
         refused.append(not out)
+        return out
+
+    def ended(self, k, end):
+        out = end_moves(self, k, end)
+        ends.append(out is not None)
         return out
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(tracks.MotionTracker, "_moved_through", counted)
+        mp.setattr(tracks.MotionTracker, "_end_moves", ended)
         py = _python(events, p, vehicle)
     _compare(py, cpp)
     native, _ = _wrapped(events, p, vehicle)
@@ -319,6 +330,7 @@ def test_moving_obstacles_match_the_python_core(seed):
     moving = [d.reason for d, *_ in py if "moving obstacle" in d.reason]
     assert moving, "no decision acted on a moving obstacle: the comparison tests little"
     assert any(refused) and not all(refused), "the rays' test never decided: the comparison tests little"
+    assert any(ends), "no end of a cluster moved: the comparison tests little"
 
 
 def test_what_a_scan_saw_through_matches_the_python_core():

@@ -492,10 +492,10 @@ inline double baseOnWheels(const Heightfield& hf, double x, double y, const doub
 // ---------------------------------------------------------------- moving obstacles (tracks.py)
 struct TrackParams
 {
-  double horizon = 2.0, cluster_gap = 0.3, max_extent = 1.25, max_range = 15.0, gate = 0.3, max_speed = 5.0,
+  double horizon = 2.0, cluster_gap = 0.3, max_extent = 6.0, max_range = 15.0, gate = 0.3, max_speed = 5.0,
          min_speed = 0.5, window = 0.8;
   int min_obs = 3;
-  double min_span = 0.15, max_residual = 0.08, min_travel = 0.3;
+  double min_span = 0.15, max_residual = 0.08, min_travel = 0.3, end_travel = 0.9;
   int min_points = 3;
   double shape_change = 0.25, coast = 0.5, step = 0.1;
   int max_points = 8;
@@ -621,8 +621,8 @@ public:
   struct Track
   {
     long ident = 0;
-    std::vector<Obs> hist;
-    double radius = 0.0, last_t = 0.0, vx = 0.0, vy = 0.0;
+    std::vector<Obs> hist;  // the window's observations (the ends' history; the centroid's from since)
+    double radius = 0.0, last_t = 0.0, since = -kInf, vx = 0.0, vy = 0.0;
     bool moving = false, moved = false;
   };
 
@@ -746,7 +746,7 @@ public:
         k.last_t = stamp;
       }
       if (std::fabs(f.r - k.radius) > p.shape_change)
-        k.hist.clear();
+        k.since = stamp;
       std::vector<Obs> kept;
       for (Obs& o : k.hist)
         if (o.t >= stamp - p.window)
@@ -758,16 +758,28 @@ public:
       k.hist = std::move(kept);
       k.radius = f.r;
       k.last_t = stamp;
+      size_t first = 0;
+      while (k.hist[first].t < k.since)
+        ++first;
+      std::vector<Obs>::const_iterator from = k.hist.begin() + static_cast<long>(first);
       double vx = 0.0, vy = 0.0;
-      const bool ok = fit(k.hist, vx, vy);
-      const double speed = ok ? std::sqrt(vx * vx + vy * vy) : 0.0;
+      bool ok = fit(from, k.hist.end(), vx, vy);
+      double speed = ok ? std::sqrt(vx * vx + vy * vy) : 0.0;
       k.moving = ok && p.min_speed <= speed && speed <= p.max_speed &&
-                 speed * (k.hist.back().t - k.hist.front().t) >= p.min_travel + f.r;
+                 speed * (k.hist.back().t - k.hist[first].t) >= p.min_travel + f.r;
       if (k.moving && rays != nullptr)
       {
-        k.moving = movedThrough(k);
+        k.moving = movedThrough(k, first);
         refused += k.moving ? 0 : 1;
       }
+      if (!k.moving && rays != nullptr)
+        for (const bool last : { false, true })
+          if (endMoves(k, last, vx, vy))
+          {
+            ok = k.moving = true;
+            speed = std::sqrt(vx * vx + vy * vy);
+            break;
+          }
       k.vx = ok ? vx : 0.0;
       k.vy = ok ? vy : 0.0;
       k.moved = k.moved || k.moving;
@@ -794,48 +806,122 @@ public:
   Prediction prediction;
 
 private:
-  bool fit(const std::vector<Obs>& h, double& vx, double& vy) const
+  // The velocity of the least-squares line through the centroids of [b, e) (tracks._fit)
+  bool fit(std::vector<Obs>::const_iterator b, std::vector<Obs>::const_iterator e, double& vx, double& vy) const
   {
-    const size_t n = h.size();
-    if (static_cast<long>(n) < p_.min_obs || h.back().t - h.front().t < p_.min_span)
+    const double tol = p_.max_residual;
+    return fitWith(
+        b, e, [](const Obs& o) { return Point{ o.x, o.y }; }, [tol](long) { return tol; }, vx, vy);
+  }
+
+  // ...through any point of the observations (an end of the cluster: its shape's first or last),
+  // the i-th from b within tol(i) of the line
+  template <class At, class Tol>
+  bool fitWith(std::vector<Obs>::const_iterator b, std::vector<Obs>::const_iterator e, At at, Tol tol, double& vx,
+               double& vy) const
+  {
+    const long n = static_cast<long>(e - b);
+    if (n < p_.min_obs || (e - 1)->t - b->t < p_.min_span)
       return false;
     double st = 0.0, sx = 0.0, sy = 0.0;
-    for (const Obs& o : h)
+    for (auto o = b; o != e; ++o)
     {
-      st += o.t;
-      sx += o.x;
-      sy += o.y;
+      const Point q = at(*o);
+      st += o->t;
+      sx += q.x;
+      sy += q.y;
     }
     const double dn = static_cast<double>(n);
     const double mt = st / dn, mx = sx / dn, my = sy / dn;
     double stt = 0.0, stx = 0.0, sty = 0.0;
-    for (const Obs& o : h)
+    for (auto o = b; o != e; ++o)
     {
-      const double dt = o.t - mt;
+      const Point q = at(*o);
+      const double dt = o->t - mt;
       stt += dt * dt;
-      stx += dt * (o.x - mx);
-      sty += dt * (o.y - my);
+      stx += dt * (q.x - mx);
+      sty += dt * (q.y - my);
     }
     if (stt <= 0.0)
       return false;
-    vx = stx / stt;
-    vy = sty / stt;
-    for (const Obs& o : h)
+    const double fx = stx / stt, fy = sty / stt;
+    for (auto o = b; o != e; ++o)
     {
-      const double ex = o.x - (mx + vx * (o.t - mt)), ey = o.y - (my + vy * (o.t - mt));
-      if (ex * ex + ey * ey > p_.max_residual * p_.max_residual)
+      const Point q = at(*o);
+      const double ex = q.x - (mx + fx * (o->t - mt)), ey = q.y - (my + fy * (o->t - mt));
+      const double d = tol(o - b);
+      if (ex * ex + ey * ey > d * d)
         return false;
     }
+    vx = fx;
+    vy = fy;
     return true;
   }
 
-  // Whether the track's cluster entered space the scan at its window's start saw through, or
-  // left space the current scan sees through (tracks.MotionTracker._moved_through)
-  bool movedThrough(const Track& k) const
+  // Whether the end of track k's cluster (its last return, or its first) moves, and its velocity
+  // then: the longest run up to now of the window over which it lies on a line (each within
+  // max_residual plus the rays' spacing at its range), at a speed within the limits, travelling
+  // end_travel, the cluster seen to move over it (tracks._end_moves)
+  bool endMoves(const Track& k, bool last, double& vx, double& vy) const
+  {
+    const auto at = [last](const Obs& o) { return last ? o.shape.back() : o.shape.front(); };
+    std::vector<double> tol;
+    double most = 0.0;
+    for (const Obs& o : k.hist)
+    {
+      const SeenScan* sc = nullptr;
+      for (const SeenScan& cand : scans_)
+        if (cand.t == o.t)
+        {
+          sc = &cand;
+          break;
+        }
+      if (sc == nullptr)
+        return false;
+      const Point q = at(o);
+      tol.push_back(p_.max_residual + std::sqrt((q.x - sc->ox) * (q.x - sc->ox) + (q.y - sc->oy) * (q.y - sc->oy)) *
+                                          std::fabs(sc->rays.inc));
+      most = std::max(most, tol.back());
+    }
+    const Point l = at(k.hist.back());
+    double reach = 0.0;
+    for (const Obs& o : k.hist)
+    {
+      const Point q = at(o);
+      reach = std::max(reach, std::sqrt((q.x - l.x) * (q.x - l.x) + (q.y - l.y) * (q.y - l.y)));
+    }
+    if (reach + 2.0 * most < p_.end_travel)
+      return false;
+    const long n = static_cast<long>(k.hist.size());
+    for (long i = 0; i + p_.min_obs <= n; ++i)
+    {
+      double fx = 0.0, fy = 0.0;
+      if (!fitWith(
+              k.hist.begin() + i, k.hist.end(), at, [&tol, i](long j) { return tol[static_cast<size_t>(i + j)]; },
+              fx, fy))
+        continue;
+      const double speed = std::sqrt(fx * fx + fy * fy);
+      if (p_.min_speed <= speed && speed <= p_.max_speed &&
+          speed * (k.hist.back().t - k.hist[static_cast<size_t>(i)].t) >= p_.end_travel &&
+          movedThrough(k, static_cast<size_t>(i)))
+      {
+        vx = fx;
+        vy = fy;
+        return true;
+      }
+      return false;
+    }
+    return false;
+  }
+
+  // Whether the track's cluster entered space the scan of its i-th observation (the start of the
+  // run that moved) saw through, or left space the current scan sees through
+  // (tracks.MotionTracker._moved_through)
+  bool movedThrough(const Track& k, size_t i) const
   {
     const SeenScan* first = nullptr;
     for (const SeenScan& sc : scans_)
-      if (sc.t == k.hist.front().t)
+      if (sc.t == k.hist[i].t)
       {
         first = &sc;
         break;
@@ -843,7 +929,7 @@ private:
     if (first == nullptr)
       return false;
     return seenThrough(*first, k.hist.back().shape, p_) >= p_.seen_points ||
-           seenThrough(scans_.back(), k.hist.front().shape, p_) >= p_.seen_points;
+           seenThrough(scans_.back(), k.hist[i].shape, p_) >= p_.seen_points;
   }
 
   void predict(const std::vector<Point>& xy, size_t a, size_t b, double ux, double uy, double speed,
@@ -1519,6 +1605,7 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "track_min_span", &c.params.track.min_span },
     { "track_max_residual", &c.params.track.max_residual },
     { "track_min_travel", &c.params.track.min_travel },
+    { "track_end_travel", &c.params.track.end_travel },
     { "track_shape_change", &c.params.track.shape_change },
     { "track_coast", &c.params.track.coast },
     { "track_step", &c.params.track.step },

@@ -128,7 +128,7 @@ class GuardParams:
                                      "every return is taken as standing still")
     track_cluster_gap: float = param(0.3, lo=0.01, hi=5.0, unit="m",
                                      doc="neighbouring returns further apart than this belong to different things")
-    track_max_extent: float = param(1.25, lo=0.05, hi=20.0, unit="m",
+    track_max_extent: float = param(6.0, lo=0.05, hi=20.0, unit="m",
                                     doc="a cluster reaching further than this from its centroid (a wall, a row, the "
                                         "ground) is not tracked")
     track_max_range: float = param(15.0, lo=0.5, hi=200.0, unit="m", doc="clusters further away are not tracked")
@@ -146,9 +146,14 @@ class GuardParams:
     track_min_travel: float = param(0.3, lo=0.0, hi=10.0, unit="m",
                                     doc="a track moves when its line travels this far over the window, beyond the "
                                         "cluster's own radius (a centroid wanders across a thing's visible face)")
+    track_end_travel: float = param(0.9, lo=0.0, hi=20.0, unit="m",
+                                    doc="...or when an end of its cluster (the first or last return) travels this far "
+                                        "on a line (a machine's leading corner; a standing thing's ends slide round "
+                                        "it as the vehicle passes)")
     track_min_points: int = param(3, lo=1, hi=1000, doc="smaller clusters are not tracked")
     track_shape_change: float = param(0.25, lo=0.01, hi=20.0, unit="m",
-                                      doc="a cluster whose size changes more than this restarts its track's history")
+                                      doc="a cluster whose size changes more than this restarts its centroid's "
+                                          "history")
     track_coast: float = param(0.5, lo=0.0, hi=10.0, unit="s", doc="an unseen track is kept this long")
     track_step: float = param(0.1, lo=0.01, hi=5.0, unit="m", doc="spacing of a moving obstacle's predicted copies")
     track_max_points: int = param(8, lo=1, hi=1000, doc="a moving cluster's points copied along its motion")

@@ -10,14 +10,13 @@ own motion (no map, no localization: the guard must not depend on the estimate):
 * **ego-motion**: the vehicle's pose in a local odometric frame, integrated from the
   measured speed and handlebar (the sweep's bicycle model, :mod:`quadrivio_navigation.fields`);
 * **clusters**: a scan's points in ray order, split where two neighbours are more than
-  ``cluster_gap`` apart; a cluster wider than ``max_extent`` (a wall, a tree row seen along,
-  the ground) or further than ``max_range`` is not tracked: its centroid moves with the
-  viewpoint, not with the thing;
+  ``cluster_gap`` apart; a cluster wider than ``max_extent`` (a long wall, a tree row seen
+  along, the ground) or further than ``max_range`` is not tracked (the cost);
 * **tracks**: each cluster's centroid in the odometric frame, matched to the track whose
   position predicted to the scan's time is nearest (greedy, nearest pair first, within
   ``gate`` plus ``max_speed`` times the time since the track was seen); a cluster whose
   size changes by more than ``shape_change`` (occlusion, two things merging) restarts its
-  track's history;
+  centroid's history;
 * **velocity**: the least-squares line through the track's centroids over the last
   ``window`` seconds (at least ``min_obs`` of them over ``min_span``); it counts only when
   every centroid lies within ``max_residual`` of the line (a centroid that jumps is not a
@@ -26,6 +25,15 @@ own motion (no map, no localization: the guard must not depend on the estimate):
   from a moving vehicle, or partly hidden behind its neighbour (a tree behind a tree along
   a row), wanders across its visible face, by up to its size, without the thing moving.
   Clusters of fewer than ``min_points`` returns are not tracked;
+* **ends**: a machine's centroid wanders by more than it travels (a tractor crossing shows
+  a side that grows and shrinks), but its corners do not: failing the centroid, a track
+  moves when an end of its cluster (its first or last return) lies on a line over the
+  longest run of the window it can (shape changes do not restart it), each within
+  ``max_residual`` plus the rays' spacing at its range (the end is the last ray that hit:
+  up to a spacing short of the corner), at a speed within the limits, travelling
+  ``end_travel``. Standing things' ends slide too (a wall's where the field of view cuts
+  it, a trunk's round it, one behind another's along the near one): ends count only with
+  the rays' test below, over the end's run;
 * **seen through** (with the scans' rays): a centroid that travels is not enough, because
   the visible face of a standing thing can slide further than its visible size: a trunk
   1.2 m wide passed 0.3 m away shows an arc that turns around it, a trunk of the far row
@@ -73,7 +81,7 @@ from .fields import Rays
 class TrackParams:
     horizon: float = 2.0  # [s] how far ahead a moving obstacle is predicted; 0: none
     cluster_gap: float = 0.3  # [m]
-    max_extent: float = 1.25  # [m] a cluster's largest distance from its centroid
+    max_extent: float = 6.0  # [m] a cluster's largest distance from its centroid (an 11 m machine from a corner)
     max_range: float = 15.0  # [m]
     gate: float = 0.3  # [m]
     max_speed: float = 5.0  # [m/s]
@@ -83,6 +91,7 @@ class TrackParams:
     min_span: float = 0.15  # [s]
     max_residual: float = 0.08  # [m]
     min_travel: float = 0.3  # [m] beyond the cluster's own size, over the window
+    end_travel: float = 0.9  # [m] an end of the cluster (its first or last return), over its run on a line
     min_points: int = 3
     shape_change: float = 0.25  # [m]
     coast: float = 0.5  # [s]
@@ -101,11 +110,13 @@ class Track:
     hist: List[Tuple[float, float, float]]  # (t, x, y) of the centroid, odometric frame
     radius: float  # [m] the cluster's largest distance from its centroid
     last_t: float
+    since: float = -math.inf  # the centroid's history starts here (a shape change restarts it; the ends' does not)
     vx: float = 0.0
     vy: float = 0.0
     moving: bool = False
     moved: bool = False  # moving at some scan of its life
-    shapes: List[np.ndarray] = field(default_factory=list)  # per hist entry: its picked points (odometric frame)
+    shapes: List[np.ndarray] = field(default_factory=list)  # per hist entry: its picked points (odometric frame),
+    # the cluster's first and last return (its ends) among them
 
 
 @dataclass
@@ -145,8 +156,9 @@ def centroids(xy: np.ndarray, ranges: List[Tuple[int, int]]) -> Tuple[np.ndarray
     return cx, cy, r
 
 
-def _fit(hist, p: TrackParams) -> Optional[Tuple[float, float]]:
-    """The velocity of the least-squares line through the centroids, or None."""
+def _fit(hist, p: TrackParams, tol: Optional[List[float]] = None) -> Optional[Tuple[float, float]]:
+    """The velocity of the least-squares line through the centroids (t, x, y), or None when
+    one lies further from it than ``max_residual`` (or its own ``tol``)."""
     n = len(hist)
     if n < p.min_obs or hist[-1][0] - hist[0][0] < p.min_span:
         return None
@@ -165,9 +177,10 @@ def _fit(hist, p: TrackParams) -> Optional[Tuple[float, float]]:
     if stt <= 0.0:
         return None
     vx, vy = stx / stt, sty / stt
-    for t, x, y in hist:
+    for i, (t, x, y) in enumerate(hist):
         ex, ey = x - (mx + vx * (t - mt)), y - (my + vy * (t - mt))
-        if ex * ex + ey * ey > p.max_residual * p.max_residual:
+        e = p.max_residual if tol is None else tol[i]
+        if ex * ex + ey * ey > e * e:
             return None
     return vx, vy
 
@@ -319,7 +332,7 @@ class MotionTracker:
                 k = Track(self.next_id, [], r, stamp)
                 self.next_id += 1
             if abs(r - k.radius) > p.shape_change:
-                k.hist, k.shapes = [], []
+                k.since = stamp
             keep = [i for i, h in enumerate(k.hist) if h[0] >= stamp - p.window]
             pk = picks(a, b, p.max_points)
             bx, by = xy[pk, 0].astype(float), xy[pk, 1].astype(float)
@@ -327,13 +340,20 @@ class MotionTracker:
             k.hist = [k.hist[i] for i in keep] + [(stamp, fx, fy)]
             k.shapes = [k.shapes[i] for i in keep] + [shape]
             k.radius, k.last_t = r, stamp
-            v = _fit(k.hist, p)
+            first = next(i for i, h in enumerate(k.hist) if h[0] >= k.since)
+            v = _fit(k.hist[first:], p)
             speed = 0.0 if v is None else math.sqrt(v[0] * v[0] + v[1] * v[1])
             k.moving = (v is not None and p.min_speed <= speed <= p.max_speed and
-                        speed * (k.hist[-1][0] - k.hist[0][0]) >= p.min_travel + r)
+                        speed * (k.hist[-1][0] - k.hist[first][0]) >= p.min_travel + r)
             if k.moving and rays is not None:
-                k.moving = self._moved_through(k)
+                k.moving = self._moved_through(k, first)
                 self.refused += not k.moving
+            if not k.moving and rays is not None:
+                for end in (0, -1):
+                    ve = self._end_moves(k, end)
+                    if ve is not None:
+                        v, speed, k.moving = ve, math.sqrt(ve[0] * ve[0] + ve[1] * ve[1]), True
+                        break
             k.vx, k.vy = v if v is not None else (0.0, 0.0)
             k.moved = k.moved or k.moving
             tracks.append(k)
@@ -348,15 +368,51 @@ class MotionTracker:
                                      np.concatenate(out_v) if out_v else np.zeros(0), moving)
         return self.prediction
 
-    def _moved_through(self, k: Track) -> bool:
-        """Whether track ``k``'s cluster entered space the scan at the start of its window saw
-        through, or left space the current scan sees through."""
+    def _moved_through(self, k: Track, i: int) -> bool:
+        """Whether track ``k``'s cluster entered space the scan of its ``i``-th observation (the
+        start of the run that moved) saw through, or left space the current scan sees through."""
         p = self.p
-        first = next((sc for sc in self.scans if sc.t == k.hist[0][0]), None)
+        first = next((sc for sc in self.scans if sc.t == k.hist[i][0]), None)
         if first is None:
             return False
         return (seen_through(first, k.shapes[-1], p) >= p.seen_points or
-                seen_through(self.scans[-1], k.shapes[0], p) >= p.seen_points)
+                seen_through(self.scans[-1], k.shapes[i], p) >= p.seen_points)
+
+    def _end_moves(self, k: Track, end: int) -> Optional[Tuple[float, float]]:
+        """The velocity of track ``k``'s cluster's end ``end`` (0: its first return, -1: its
+        last) if it moves, else None. Its run is the longest stretch up to now of the window
+        (shape changes included) over which the end lies on a line (``_fit``), each within
+        ``max_residual`` plus the rays' spacing at its range (the end is the last ray that hit
+        the thing: up to a spacing short of its corner, more on a face seen obliquely, taken up
+        to 60 deg); it moves when the line's speed is within the limits, it travels
+        ``end_travel`` over the run, and the cluster entered or left space seen through over
+        it (:meth:`_moved_through`)."""
+        p = self.p
+        pts, tol = [], []
+        for h, sh in zip(k.hist, k.shapes):
+            sc = next((sc for sc in self.scans if sc.t == h[0]), None)
+            if sc is None:
+                return None
+            x, y = float(sh[end][0]), float(sh[end][1])
+            pts.append((h[0], x, y))
+            tol.append(p.max_residual + math.sqrt((x - sc.ox) * (x - sc.ox) + (y - sc.oy) * (y - sc.oy)) *
+                       abs(sc.rays.increment))
+        lx, ly = pts[-1][1], pts[-1][2]
+        reach = 0.0  # the furthest the end was from where it is: no run can travel more (but the residuals)
+        for _, x, y in pts:
+            reach = max(reach, math.sqrt((x - lx) * (x - lx) + (y - ly) * (y - ly)))
+        if reach + 2.0 * max(tol) < p.end_travel:
+            return None
+        for i in range(len(pts) - p.min_obs + 1):
+            v = _fit(pts[i:], p, tol[i:])
+            if v is None:
+                continue
+            speed = math.sqrt(v[0] * v[0] + v[1] * v[1])
+            if (p.min_speed <= speed <= p.max_speed and speed * (pts[-1][0] - pts[i][0]) >= p.end_travel and
+                    self._moved_through(k, i)):
+                return v
+            return None
+        return None
 
     def _predict(self, xy, a, b, ux, uy, speed, out_xy, out_v) -> None:
         """The cluster's points a..b-1 (at most max_points, evenly picked) moved by (ux, uy)
