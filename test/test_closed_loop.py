@@ -137,7 +137,7 @@ def test_each_stop_is_kept_with_what_the_guard_saw_and_drawn(tmp_path):
     """The in-process run keeps, for each of the guard's stops, the points it last read from
     each laser (as stop_views draws them): a campaign's notable run shows why it stopped."""
     from quadrivio.obstacle_metrics import obstacle_metrics
-    from quadrivio.stop_views import STOP
+    from quadrivio.stop_views import STOP, moving_reach, moving_sources
 
     s = load_scenario("dog_runs_out")
     r = closed_loop.run(s, 1, max_duration=12.0)
@@ -147,8 +147,15 @@ def test_each_stop_is_kept_with_what_the_guard_saw_and_drawn(tmp_path):
     assert first.action == STOP and first.field_kind == "protective" and first.scanner == "scan/front"
     assert first.nearest is not None and 0.0 <= first.free <= first.protective
     front = first.scans["scan/front"]
-    # the nearest point the guard named is one of the front laser's points it read
-    assert np.min(np.hypot(front[:, 0] - first.nearest[0], front[:, 1] - first.nearest[1])) < 1e-9
+    # the nearest point the guard named is one of the front laser's points it read, or, for a
+    # stop on where a tracked moving thing may be, a point within its reach of front returns
+    off = np.min(np.hypot(front[:, 0] - first.nearest[0], front[:, 1] - first.nearest[1]))
+    reach = moving_reach(first)
+    if reach is None:
+        assert off < 1e-9
+    else:
+        assert "moving obstacle" in first.reason and 0.0 < off <= reach[0] * reach[1]
+        assert len(moving_sources(first)) > 0
     assert 0.0 <= first.scan_ages["scan/front"] <= 0.25
     made = closed_loop.plot_run(r, s, 1, str(tmp_path))
     assert f"stops/stop_01_{first.t:.2f}s.png" in made and (tmp_path / "stops").is_dir()
