@@ -492,7 +492,7 @@ inline double baseOnWheels(const Heightfield& hf, double x, double y, const doub
 // ---------------------------------------------------------------- moving obstacles (tracks.py)
 struct TrackParams
 {
-  double horizon = 2.0, cluster_gap = 0.3, max_extent = 6.0, max_range = 15.0, gate = 0.3, max_speed = 5.0,
+  double horizon = 2.0, cluster_gap = 0.3, max_extent = 6.0, max_range = 15.0, gate = 0.3, max_speed = 12.0,
          min_speed = 0.5, window = 0.8;
   int min_obs = 3;
   double min_span = 0.15, max_residual = 0.08, min_travel = 0.3, end_travel = 0.9;

@@ -135,7 +135,7 @@ class GuardParams:
     track_gate: float = param(0.3, lo=0.01, hi=5.0, unit="m",
                               doc="a cluster matches a track within this of its predicted position (plus "
                                   "track_max_speed times the time since it was seen)")
-    track_max_speed: float = param(5.0, lo=0.1, hi=50.0, unit="m/s", doc="faster tracks are not believed")
+    track_max_speed: float = param(12.0, lo=0.1, hi=50.0, unit="m/s", doc="faster tracks are not believed")
     track_min_speed: float = param(0.5, lo=0.0, hi=50.0, unit="m/s", doc="slower tracks are taken as standing")
     track_window: float = param(0.8, lo=0.05, hi=10.0, unit="s", doc="the velocity is fitted over this long")
     track_min_obs: int = param(3, lo=2, hi=100, doc="centroids needed for a velocity")

@@ -84,7 +84,7 @@ class TrackParams:
     max_extent: float = 6.0  # [m] a cluster's largest distance from its centroid (an 11 m machine from a corner)
     max_range: float = 15.0  # [m]
     gate: float = 0.3  # [m]
-    max_speed: float = 5.0  # [m/s]
+    max_speed: float = 12.0  # [m/s]
     min_speed: float = 0.5  # [m/s]
     window: float = 0.8  # [s]
     min_obs: int = 3
