@@ -6,7 +6,7 @@ no transport; planning takes no sim time in one process).
 * the figure eight: completed both ways, localization, prediction and cross-track RMSE
   within 10 %;
 * the orchard (planned, with the lasers, the local layer and the guard): completed both
-  ways, no collision, no replan and no stop, goal error within 0.1 m of each other and
+  ways, no collision, no replan and no stop, goal error within 0.15 m of each other and
   localization RMSE within 10 %; the ROS run's planned-run keys and plots (this is also
   ``experiment``'s planned scenario, end to end). Its cross-track RMSE is not compared: the lattice's path depends on the start
   estimate to the millimetre, and ROS plans from a later one (the map is ready 0.1-0.4 s
@@ -67,7 +67,9 @@ def test_the_orchard_in_one_process_as_in_ros(tmp_path):
     ros, inp = _both(str(scenario), tmp_path, 0)
     assert ros["completed"] is True and inp["completed"] is True
     assert ros["collisions"] == inp["collisions"] == 0
-    assert abs(ros["goal_position_error_m"] - inp["goal_position_error_m"]) <= 0.1
+    # ROS plans in sim time, as long as the planner's CPU takes, so the vehicle sets off later
+    # there, by a time that depends on the machine, and meets other GNSS noise at the goal
+    assert abs(ros["goal_position_error_m"] - inp["goal_position_error_m"]) <= 0.15
     assert _close(ros["loc_rmse_m"], inp["loc_rmse_m"], 0.10), (ros["loc_rmse_m"], inp["loc_rmse_m"])
     # what `experiment` gives a planned run, ROS side: plan on the orchard map, drive out of the
     # first row, U-turn in the headland, park in the second row facing back, touching no tree
