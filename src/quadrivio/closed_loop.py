@@ -22,8 +22,9 @@ Where it differs from the ROS stack, by design:
 * **Planning takes no sim time.** The simulated world waits while the planner works (in
   ROS the vehicle stands still during a first plan and drives on during a replan, which
   starts from where it will be by then); the planner's time is still measured and
-  reported. The lattice stops at ``closed_loop.planner_expansions`` expansions instead of
-  its wall-clock budget, so that a run repeats.
+  reported. The lattice stops at ``planning.REPEATABLE_EXPANSIONS`` expansions (or the
+  scenario's ``planner: lattice: max_expansions``) instead of its wall-clock budget, so
+  that a run repeats. ROS in lockstep does both alike (``experiment --lockstep``).
 * **No PLCClient.** The guard's setpoints go to the PLC program directly, in AUTO from the
   start; the PLCClient's own checks (its session, the operator's mode) are not exercised.
 
@@ -50,15 +51,6 @@ from .scenario import Scenario, _defaults, _section
 from .scenario import vehicle as scenario_vehicle
 
 MAX_RANGE = 20.0  # [m] the guard's: returns beyond cannot matter for its fields
-# The lattice's bound in place of its wall-clock budget, so that a run repeats (a scenario's
-# planner: lattice: max_expansions overrides it): about 2 s of the native search on this
-# machine's single core. The orchard's searches reach eps 1 in 11 000-57 000; at 30 000 (the
-# Python search's 3 s) some starts ended on their eps-3 path, 64 m with 7 cusps, where the
-# vehicle was held between the trees
-PLANNER_EXPANSIONS = 300000
-# The wall-clock budget behind it: only the OMPL fallback of a wedged start uses it (it stops
-# at its first solution), and a start with no way out must not hold a campaign for minutes
-PLANNER_BUDGET = 60.0
 
 
 @dataclass
@@ -167,7 +159,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.maps import OccupancyGrid as Grid
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
-    from quadrivio_navigation.planning import Planner, PlannerParams
+    from quadrivio_navigation.planning import Planner, PlannerParams, repeatable
     from quadrivio_navigation.replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance,
                                                  mark_discs, merge_local, replan_start)
     from quadrivio_navigation.rollover import RolloverParams
@@ -250,8 +242,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     planner = None
     pnode = _config(PlannerNodeParams, "quadrivio_navigation", "planner.yaml", s, None)
     plp = _config(PlannerParams, "quadrivio_navigation", "planner.yaml", s, "planner")
-    plp = replace_nested(plp, {"lattice": {"max_expansions": plp.lattice.max_expansions or PLANNER_EXPANSIONS},
-                               "budget": PLANNER_BUDGET}, "closed loop")
+    plp = repeatable(plp)  # bounded by expansions: a run repeats
     layer = None
     if sp.map.file:
         grid = load_map(sp.map.file, frame)

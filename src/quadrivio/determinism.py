@@ -13,7 +13,8 @@ own ``/tf`` (:data:`NOT_SEQUENCED`): it turns each ``/joint_states`` message int
 it is no lockstep member and subscribes with a queue of one, so a joint state that arrives
 while it waits for the CPU replaces the one before it (a fresh clone's ``make test``, three
 lockstep runs at once: 439 messages against 440). Its input, the simulator's
-``/joint_states``, is compared. ROS-free: the bag side is in
+``/joint_states``, is compared. So are the planner's statuses, but for the fields that
+time its searches on the wall clock (:data:`WALL_CLOCK_FIELDS`). ROS-free: the bag side is in
 :func:`quadrivio.ros.bag.streams`.
 """
 
@@ -23,6 +24,10 @@ from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 WALL_CLOCK_TOPICS = ("/rosout", "/rosout_agg", "/diagnostics", "/diagnostics_agg", "/diagnostics_toplevel_state")
+
+# message type -> its fields that are wall-clock figures, zeroed before comparing (in lockstep a
+# plan takes no sim time, but the planner still says how long it took)
+WALL_CLOCK_FIELDS = {"quadrivio_navigation/PlannerStatus": ("planning_time", "time_to_first")}
 
 # (topic, publisher): streams of nodes outside lockstep whose every message is a function of a
 # compared stream, but which may drop some of it (robot_state_publisher's joint states)

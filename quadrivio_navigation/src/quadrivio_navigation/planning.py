@@ -87,6 +87,26 @@ class PlannerParams:
     ompl: OmplParams = param(OmplParams())
 
 
+# Bounds for runs that must repeat (the closed loop in one process, ROS in lockstep): the lattice
+# stops at this many expansions instead of at its wall-clock budget, whose reach depends on the
+# machine. About 2 s of the native search on one core of this machine. The orchard's searches reach
+# eps 1 in 11 000-57 000; at 30 000 (the Python search's 3 s) some starts ended on their eps-3 path,
+# 64 m with 7 cusps, where the vehicle was held between the trees
+REPEATABLE_EXPANSIONS = 300000
+# The wall-clock budget behind it: only the OMPL fallback of a wedged start uses it (it stops at
+# its first solution), and a start with no way out must not hold a run for minutes
+REPEATABLE_BUDGET = 60.0
+
+
+def repeatable(p: PlannerParams) -> PlannerParams:
+    """``p`` for a run that must repeat: the lattice bounded by expansions (``p``'s own
+    ``lattice.max_expansions`` if set, else :data:`REPEATABLE_EXPANSIONS`), the wall-clock
+    budget only behind it. OMPL's sampling planners stay bounded by time: a run planned with
+    ``planner: ompl`` repeats only where they find their path before it."""
+    lat = dataclasses.replace(p.lattice, max_expansions=p.lattice.max_expansions or REPEATABLE_EXPANSIONS)
+    return dataclasses.replace(p, lattice=lat, budget=max(p.budget, REPEATABLE_BUDGET))
+
+
 @dataclass
 class PlanResult:
     ok: bool

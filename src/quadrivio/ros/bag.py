@@ -315,10 +315,27 @@ def _static_unstamped(raw) -> bytes:
     return buf.getvalue()
 
 
+def _wall_clock_zeroed(raw, fields) -> bytes:
+    """A message serialised again with its ``fields`` (wall-clock figures) and header.seq zeroed."""
+    import io
+
+    msg = raw[4]()
+    msg.deserialize(raw[1])
+    for name in fields:
+        setattr(msg, name, type(getattr(msg, name))(0))
+    msg.header.seq = 0
+    buf = io.BytesIO()
+    msg.serialize(buf)
+    return buf.getvalue()
+
+
 def streams(bag_path: str, skip: Iterable[str] = ()) -> Dict[tuple, List[bytes]]:
     """Per (topic, publisher) the serialised messages of a bag, in order, ``header.seq``
-    zeroed, and the stamps of /tf_static's transforms (:func:`quadrivio.determinism.compare`);
+    zeroed, and the stamps of /tf_static's transforms and the wall-clock fields of
+    :data:`quadrivio.determinism.WALL_CLOCK_FIELDS` (:func:`quadrivio.determinism.compare`);
     topics in ``skip`` left out."""
+    from ..determinism import WALL_CLOCK_FIELDS
+
     import rosbag
 
     skip = set(skip)
@@ -339,6 +356,8 @@ def streams(bag_path: str, skip: Iterable[str] = ()) -> Dict[tuple, List[bytes]]
                 # one-shot timer reads the first /clock it sees, 0.02 or 0.03 s, which lockstep
                 # does not sequence (it is no member)
                 data = _static_unstamped(raw)
+            elif raw[0] in WALL_CLOCK_FIELDS:
+                data = _wall_clock_zeroed(raw, WALL_CLOCK_FIELDS[raw[0]])
             elif getattr(raw[4], "_has_header", False) and len(data) >= 4:
                 # header.seq is the transport's: rospy numbers a latched message once per
                 # subscriber it reaches, so it tells who connected first, not what the node did

@@ -9,7 +9,11 @@ guard's list: topic and frame), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
 terrain is known, returns on it are the ground, not obstacles), ``~only_with_goal`` (bool,
 true: the scanners are subscribed only while ``planner/status`` says the planner pursues a
 goal, i.e. is not IDLE; the planner is the layer's reader, and a path-following run spent
-0.14 CPU s per simulated second on a layer nobody read).
+0.14 CPU s per simulated second on a layer nobody read). In lockstep the scanners are
+subscribed from the start and their scans dropped while the planner is IDLE: lockstep
+counts a member's messages from its subscriptions at the start, and a subscription made
+mid-run would get the scans its connection happened to be ready for (a planned run would
+not repeat).
 
 Subscribes: the scanners' topics (sensor_msgs/LaserScan), ``localization/predicted``
 (nav_msgs/Odometry: where the vehicle is), ``imu/data`` (sensor_msgs/Imu) and ``vehicle/state``
@@ -33,7 +37,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from nav_msgs.msg import OccupancyGrid, Odometry
 from sensor_msgs.msg import Imu, LaserScan
 
-from quadrivio_runtime.ros import init_node
+from quadrivio_runtime.ros import init_node, lockstep
 from quadrivio_description.frames import rotate, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
 from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario
@@ -73,6 +77,10 @@ class LocalLayerNode:
             rospy.Subscriber("vehicle/state", VehicleState, self._on_state, queue_size=10)
         self.scan_subs = []
         self.active = False
+        self.fixed_subs = lockstep.member() is not None  # subscribed once (see the module's doc)
+        if self.fixed_subs:
+            self.scan_subs = [rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
+                              for s in self.node_params.scanners]
         if self.node_params.only_with_goal:
             from ..msg import PlannerStatus
 
@@ -92,7 +100,11 @@ class LocalLayerNode:
         if active == self.active:
             return
         self.active = active
-        if active:
+        if self.fixed_subs:  # the subscriptions stay: _on_scan drops what comes while idle
+            if not active:
+                with self.lock:
+                    self.layer = LocalLayer(self.p)
+        elif active:
             self.scan_subs = [rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
                               for s in self.node_params.scanners]
         else:
@@ -131,6 +143,8 @@ class LocalLayerNode:
             self.attitude.add_speed(m.header.stamp.to_sec(), m.wheel_speed)
 
     def _on_scan(self, m: LaserScan, s) -> None:
+        if not self.active:  # (lockstep: subscribed while the planner is idle)
+            return
         check_clock()
         now = rospy.get_time()
         stamp = m.header.stamp.to_sec()

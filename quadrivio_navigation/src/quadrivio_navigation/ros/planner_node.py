@@ -30,6 +30,12 @@ cusps). A goal outside the map, in collision or unreachable, or a start in colli
 gives FAILED with the reason, in the log too, and no path.
 Services: ``~plan`` (quadrivio_navigation/PlanPath): plan between two given poses without
 publishing anything.
+
+In lockstep (``sim.launch lockstep:=true``) a plan takes no sim time, as in the closed loop
+in one process: the simulator's round waits for the planner's thread, and the lattice stops
+at a number of expansions (:func:`quadrivio_navigation.planning.repeatable`) instead of its
+wall-clock budget, so that a planned run repeats message for message. A replan then starts
+where the vehicle is (it does not move while the planner works).
 """
 
 from __future__ import annotations
@@ -46,14 +52,14 @@ from geometry_msgs.msg import PoseStamped
 from nav_msgs.msg import OccupancyGrid, Odometry
 from nav_msgs.msg import Path as PathMsg
 
-from quadrivio_runtime.ros import init_node
+from quadrivio_runtime.ros import init_node, lockstep
 from quadrivio_runtime.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
                                              with_scenario)
 from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
-from ..planning import PlannerParams, Planner, PlanResult
+from ..planning import PlannerParams, Planner, PlanResult, repeatable
 from ..replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs, merge_local,
                           overtaken, replan_start)
 from ..srv import PlanPath, PlanPathResponse
@@ -81,6 +87,11 @@ class PlannerNode:
         self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: PlannerParams = with_scenario(node_params(PlannerParams, rest), "planner")
         self.vehicle = vehicle_params()
+        # in lockstep a plan takes no sim time (the round waits for it: see _work) and is bounded by
+        # expansions, not by the wall clock, so that it ends alike in every run
+        self.member = lockstep.member()
+        if self.member is not None:
+            self.p = repeatable(self.p)
         self.heights, self.rollover = self._terrain()
         self.lock = threading.Lock()  # one plan at a time (worker or service)
         self.planner: Optional[Planner] = None
@@ -118,7 +129,8 @@ class PlannerNode:
         self.last_try = -math.inf
         self.replans = 0
         self.block_why = ""  # what blocked the path (BLOCKED retries with it)
-        self.replan_time = self.p.budget + 1.5  # [s] wall, a replan's (building the map's planner included)
+        # [s] wall, a replan's (building the map's planner included); none in lockstep
+        self.replan_time = self.p.budget + 1.5 if self.member is None else 0.0
         if self.node_params.check_rate > 0.0:
             rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
             rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
@@ -129,6 +141,8 @@ class PlannerNode:
         rospy.Service("~plan", PlanPath, self._on_plan_service)
         self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
         self.worker.start()
+        if self.member is not None:
+            self.member.add_drain(self.jobs.join)  # a round ends when its plans are done
         rospy.loginfo("planner: %s, budget %.1f s, reverse %s, turning radius %.2f m", self.p.planner, self.p.budget,
                       self.p.reverse, (self.p.turning_radius or self.vehicle.min_turning_radius) * self.p.radius_margin)
 
@@ -210,33 +224,42 @@ class PlannerNode:
             except queue.Empty:
                 continue
             try:
-                if kind == "map":
-                    self.map_warnings = tuple(item.warnings)
-                    for warning in self.map_warnings:
-                        rospy.logwarn("planner: %s", warning)
-                    self._build(item)
-                    if self.goal is not None:
-                        self._plan_goal(self.goal)
-                elif kind == "replan":
-                    if self.jobs.empty():  # a newer goal or map first
-                        self._replan(item)
-                else:
-                    # only the newest goal matters
-                    while True:
-                        try:
-                            k2, i2 = self.jobs.get_nowait()
-                        except queue.Empty:
-                            break
+                self._job(kind, item)
+            finally:
+                self.jobs.task_done()  # (lockstep's round waits for every job: jobs.join)
+
+    def _job(self, kind: str, item) -> None:
+        try:
+            if kind == "map":
+                self.map_warnings = tuple(item.warnings)
+                for warning in self.map_warnings:
+                    rospy.logwarn("planner: %s", warning)
+                self._build(item)
+                if self.goal is not None:
+                    self._plan_goal(self.goal)
+            elif kind == "replan":
+                if self.jobs.empty():  # a newer goal or map first
+                    self._replan(item)
+            else:
+                # only the newest goal matters (and a replan queued behind it is for the old one)
+                while True:
+                    try:
+                        k2, i2 = self.jobs.get_nowait()
+                    except queue.Empty:
+                        break
+                    try:
                         if k2 == "map":
                             self._build(i2)
-                        else:
+                        elif k2 == "goal":
                             item = i2
-                    self.goal = item
-                    self.cancel.clear()
-                    self._plan_goal(item)
-            except Exception as exc:  # noqa: BLE001 - a planning bug must not end the node's planning
-                rospy.logerr("planner: %s failed: %r", kind, exc)
-                self._set_status(PlannerStatus.FAILED, f"internal error: {exc!r}")
+                    finally:
+                        self.jobs.task_done()
+                self.goal = item
+                self.cancel.clear()
+                self._plan_goal(item)
+        except Exception as exc:  # noqa: BLE001 - a planning bug must not end the node's planning
+            rospy.logerr("planner: %s failed: %r", kind, exc)
+            self._set_status(PlannerStatus.FAILED, f"internal error: {exc!r}")
 
     def _replan(self, why: str) -> None:
         """Plan from the predicted pose on the map with the local layer's marks added."""
@@ -263,12 +286,14 @@ class PlannerNode:
             return self._blocked(f"{why}; and the goal is blocked: {occupied}", start_msg)
         rospy.logwarn("planner: %s: replanning from (%.2f, %.2f)", why, start[0], start[1])
         self._set_status(PlannerStatus.PLANNING, why, start=start_msg, goal=self.goal)
-        budget = self.node_params.replan_budget if not len(prefix) and abs(self.speed) < 0.2 else None
+        budget = self.node_params.replan_budget if not len(prefix) and abs(self.speed) < 0.2 and \
+            self.member is None else None
         r = planner.plan(start, goal, budget, cancelled=self.cancel.is_set)
         if self.cancel.is_set():
             return
         took = time.monotonic() - t
-        self.replan_time = max(took, 0.5 * (self.replan_time + took))  # a pessimistic running estimate
+        if self.member is None:  # a pessimistic running estimate (in lockstep the vehicle waits)
+            self.replan_time = max(took, 0.5 * (self.replan_time + took))
         if not r.ok:
             return self._blocked(f"{why}; no other path: {r.reason}", start_msg, r)
         if self._overtaken(prefix, start):

@@ -20,6 +20,11 @@ every member node in rounds, like a bulk-synchronous program:
 * what a round publishes is handled in the next round; the tick is over when a round
   published nothing. Then the simulator steps again.
 
+Work a node hands to a thread of its own (the planner's searches) would end at a moment
+the scheduler picks, so the node registers a *drain* (:meth:`Member.add_drain`): the round
+waits for that work before it reports, and sim time waits with it. What the thread
+publishes then counts in the round, like what a callback publishes.
+
 What a node does therefore depends on the messages and the clock alone, never on which
 thread ran first. The TCP link to the PLC takes part through the PLC client's counts of
 frames sent and handled (``link``). Topics outside the loop's data flow (``/clock``,
@@ -91,6 +96,7 @@ class Member:
         self.base_sent: Dict[str, int] = {}
         self.delivered: Dict[Tuple[str, str], int] = defaultdict(int)  # since arming
         self.timers: List[_Timer] = []
+        self.drains: List[Callable[[], None]] = []
         self.armed = False
         self.last_t = 0
         # Pseudo-subscriptions (the PLC client's link): topic -> connected publishers (0 or 1)
@@ -135,6 +141,13 @@ class Member:
         with self.cond:
             self.timers.append(t)
         return t
+
+    def add_drain(self, wait: Callable[[], None]) -> None:
+        """``wait()`` returns once the work this node's own threads were given (in this
+        round's callbacks and timers, or before) is done: every round calls it before it
+        reports, so that the work takes no sim time and ends at the same point of every run."""
+        with self.cond:
+            self.drains.append(wait)
 
     def link(self, connected: Callable[[], bool], sent: Callable[[], int]) -> None:
         """This node talks to the emulated PLC: ``connected()`` says whether the session is
@@ -293,6 +306,8 @@ class Member:
                     # one run per round however many periods passed (as rospy.Timer after a stall)
                     tm.next_ns = (t_ns // tm.period_ns + 1) * tm.period_ns
                     tm.callback(ev)
+        for wait in list(self.drains):
+            wait()
         return error
 
 
