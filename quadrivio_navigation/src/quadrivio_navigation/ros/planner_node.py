@@ -87,7 +87,7 @@ class PlannerNode:
         self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: PlannerParams = with_scenario(node_params(PlannerParams, rest), "planner")
         self.vehicle = vehicle_params()
-        # in lockstep a plan takes no sim time (the round waits for it: see _work) and is bounded by
+        # in lockstep a plan takes no sim time (the round makes it: see _drain) and is bounded by
         # expansions, not by the wall clock, so that it ends alike in every run
         self.member = lockstep.member()
         if self.member is not None:
@@ -139,10 +139,11 @@ class PlannerNode:
             rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
             guarded_timer(1.0 / self.node_params.check_rate, self._check, "path check")
         rospy.Service("~plan", PlanPath, self._on_plan_service)
-        self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
-        self.worker.start()
-        if self.member is not None:
-            self.member.add_drain(self.jobs.join)  # a round ends when its plans are done
+        if self.member is None:
+            self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
+            self.worker.start()
+        else:  # the round's own thread plans once the round's messages and timers are handled
+            self.member.add_drain(self._drain)
         rospy.loginfo("planner: %s, budget %.1f s, reverse %s, turning radius %.2f m", self.p.planner, self.p.budget,
                       self.p.reverse, (self.p.turning_radius or self.vehicle.min_turning_radius) * self.p.radius_margin)
 
@@ -226,7 +227,20 @@ class PlannerNode:
             try:
                 self._job(kind, item)
             finally:
-                self.jobs.task_done()  # (lockstep's round waits for every job: jobs.join)
+                self.jobs.task_done()
+
+    def _drain(self) -> None:
+        """Lockstep: the jobs the round's messages and timers gave, made in the round (a
+        thread would read the start or the layer while the round still delivers them)."""
+        while True:
+            try:
+                kind, item = self.jobs.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                self._job(kind, item)
+            finally:
+                self.jobs.task_done()
 
     def _job(self, kind: str, item) -> None:
         try:

@@ -20,10 +20,11 @@ every member node in rounds, like a bulk-synchronous program:
 * what a round publishes is handled in the next round; the tick is over when a round
   published nothing. Then the simulator steps again.
 
-Work a node hands to a thread of its own (the planner's searches) would end at a moment
-the scheduler picks, so the node registers a *drain* (:meth:`Member.add_drain`): the round
-waits for that work before it reports, and sim time waits with it. What the thread
-publishes then counts in the round, like what a callback publishes.
+Work a node would hand to a thread of its own (the planner's searches) would start and end
+at moments the scheduler picks, so the node registers a *drain* instead
+(:meth:`Member.add_drain`): every round runs it after its messages and timers and before it
+reports, and sim time waits for it. What it publishes counts in the round, like what a
+callback publishes.
 
 What a node does therefore depends on the messages and the clock alone, never on which
 thread ran first. The TCP link to the PLC takes part through the PLC client's counts of
@@ -143,9 +144,9 @@ class Member:
         return t
 
     def add_drain(self, wait: Callable[[], None]) -> None:
-        """``wait()`` returns once the work this node's own threads were given (in this
-        round's callbacks and timers, or before) is done: every round calls it before it
-        reports, so that the work takes no sim time and ends at the same point of every run."""
+        """Every round calls ``wait()`` after its messages and timers, before it reports: it does
+        (or waits for) the work they gave, which so takes no sim time and sees the same inputs
+        in every run."""
         with self.cond:
             self.drains.append(wait)
 
