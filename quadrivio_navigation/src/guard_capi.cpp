@@ -5,6 +5,7 @@
 
 #include <cstdio>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -49,6 +50,42 @@ void* qv_guard_create(const char* text, size_t size, char* error, size_t error_s
   }
   h->guard = std::make_unique<g::Guard>(h->config.params, h->config.vehicle, &h->config.terrain);
   return h.release();
+}
+
+// The C++ defaults of the configuration's keys, a "name value" line each (the numeric
+// parameters, then the node's as "node_<name>"), for the test that holds them to guard.yaml and
+// the Python parameters; the bytes written, or the bytes needed when ``size`` is too small
+size_t qv_guard_defaults(char* out, size_t size)
+{
+  g::Config c;
+  std::map<std::string, double*> fields;
+  std::map<std::string, int*> counts;
+  g::paramKeys(c, fields, counts);
+  std::string text;
+  char line[128];
+  for (const auto& kv : fields)
+  {
+    std::snprintf(line, sizeof(line), "%s %.17g\n", kv.first.c_str(), *kv.second);
+    text += line;
+  }
+  for (const auto& kv : counts)
+  {
+    std::snprintf(line, sizeof(line), "%s %d\n", kv.first.c_str(), *kv.second);
+    text += line;
+  }
+  const std::pair<const char*, double> node[] = { { "request_timeout", c.request_timeout },
+                                                  { "ground_tolerance", c.ground_tolerance },
+                                                  { "ground_position_sigmas", c.ground_position_sigmas },
+                                                  { "ground_tolerance_max", c.ground_tolerance_max },
+                                                  { "ground_position_sd_min", c.ground_position_sd_min } };
+  for (const auto& kv : node)
+  {
+    std::snprintf(line, sizeof(line), "node_%s %.17g\n", kv.first, kv.second);
+    text += line;
+  }
+  if (out != nullptr && size > text.size())
+    std::memcpy(out, text.c_str(), text.size() + 1);
+  return text.size() + 1;
 }
 
 void qv_guard_destroy(void* handle)

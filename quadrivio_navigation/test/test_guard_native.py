@@ -452,3 +452,27 @@ def test_the_wrapper_names_a_bad_configuration_and_a_missing_library(monkeypatch
     monkeypatch.setattr(guard_native, "find_library", lambda name: (_ for _ in ()).throw(FileNotFoundError(name)))
     with pytest.raises(guard_native.GuardUnavailable, match="make setup"):
         guard_native.load_library()
+
+
+def test_the_cores_defaults_are_guard_yamls():
+    """guard.yaml is held to GuardParams by test_config_files; here the defaults written twice
+    more are held to GuardParams: the Python tracker's TrackParams and the C++ core's Params,
+    TrackParams and node keys (every numeric key, both ways)."""
+    from dataclasses import fields
+    from quadrivio_navigation.guard import GuardNodeParams
+    from quadrivio_navigation.guard_native import native_defaults
+    from quadrivio_navigation.tracks import TrackParams
+
+    g, node = GuardParams(), GuardNodeParams()
+    assert TrackParams() == g.tracks()
+    native = native_defaults()
+    numeric = {f.name: getattr(g, f.name) for f in fields(g)
+               if isinstance(getattr(g, f.name), (int, float)) and not isinstance(getattr(g, f.name), bool)}
+    core = {k: v for k, v in native.items() if not k.startswith("node_")}
+    assert sorted(core) == sorted(numeric), "keys the C++ core and GuardParams do not share"
+    differ = {k: (core[k], numeric[k]) for k in core if core[k] != numeric[k]}
+    assert not differ, f"C++ default != GuardParams default (C++, Python): {differ}"
+    node_keys = {k[len("node_"):]: v for k, v in native.items() if k.startswith("node_")}
+    assert node_keys, "the C++ core reports no node keys"
+    differ = {k: (v, getattr(node, k)) for k, v in node_keys.items() if v != getattr(node, k)}
+    assert not differ, f"C++ default != GuardNodeParams default (C++, Python): {differ}"

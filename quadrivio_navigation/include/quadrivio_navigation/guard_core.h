@@ -1564,10 +1564,11 @@ struct Config
   Heightfield terrain;
 };
 
-// Read a configuration from ``in``; false with ``error`` naming the line that is wrong
-inline bool readConfig(FILE* in, Config& c, std::string& error)
+// The configuration's numeric keys (guard.yaml's names) and where ``c`` holds them: real numbers
+// in ``fields``, whole numbers in ``counts``
+inline void paramKeys(Config& c, std::map<std::string, double*>& fields, std::map<std::string, int*>& counts)
 {
-  std::map<std::string, double*> fields = {
+  fields = {
     { "padding", &c.params.padding },
     { "step", &c.params.step },
     { "brake_decel", &c.params.brake_decel },
@@ -1613,12 +1614,20 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
     { "track_seen_margin", &c.params.track.seen_margin },
     { "track_seen_angle", &c.params.track.seen_angle },
   };
-  std::map<std::string, int*> counts = {  // whole numbers: a fraction is an error
+  counts = {  // whole numbers: a fraction is an error
     { "track_min_obs", &c.params.track.min_obs },
     { "track_min_points", &c.params.track.min_points },
     { "track_max_points", &c.params.track.max_points },
     { "track_seen_points", &c.params.track.seen_points },
   };
+}
+
+// Read a configuration from ``in``; false with ``error`` naming the line that is wrong
+inline bool readConfig(FILE* in, Config& c, std::string& error)
+{
+  std::map<std::string, double*> fields;
+  std::map<std::string, int*> counts;
+  paramKeys(c, fields, counts);
   std::map<std::string, bool> seen;
   char line[4096];
   bool has_body = false, has_vehicle = false;

@@ -12,7 +12,7 @@ from __future__ import annotations
 import ctypes
 import io
 import threading
-from typing import Optional, Tuple
+from typing import Dict, Optional, Tuple
 
 import numpy as np
 
@@ -53,8 +53,21 @@ def load_library():
         lib.qv_guard_command.argtypes = [ctypes.c_void_p, ctypes.c_int, d, d, d, d, p]
         lib.qv_guard_state.restype = ctypes.c_int
         lib.qv_guard_state.argtypes = [ctypes.c_void_p, p]
+        lib.qv_guard_defaults.restype = sz
+        lib.qv_guard_defaults.argtypes = [ctypes.c_char_p, sz]
         _LIB = lib
         return lib
+
+
+def native_defaults() -> Dict[str, float]:
+    """The C++ core's own defaults of the configuration's numeric keys (guard.yaml's names; the
+    node's keys as ``node_<name>``). The nodes always pass every key, so these matter only where
+    the core is used without a configuration; a test holds them to :class:`GuardParams`."""
+    lib = load_library()
+    n = lib.qv_guard_defaults(None, 0)
+    buf = ctypes.create_string_buffer(n)
+    lib.qv_guard_defaults(buf, n)
+    return {k: float(v) for k, v in (line.split() for line in buf.value.decode().splitlines())}
 
 
 class NativeGuard:
