@@ -111,6 +111,18 @@ def test_a_notable_run_gets_its_own_plots_and_a_plain_one_by_request():
     assert campaign.parse(["rtk", "--out", "x", "--closed-loop"]).run_plots == "notable"
 
 
+def test_a_runs_progress_line_says_what_the_table_says():
+    """A run that ends at its time limit with its path unfinished (the dog that stays in the
+    lane) is not reported "completed" while the table says 0; stops and contacts are named."""
+    ok = {"end": "completed", "completed": 1.0, "collisions": 0, "protective_stops": 0, "false_stops": 0}
+    assert campaign._progress_end(ok) == "completed"
+    assert campaign._progress_end(dict(ok, completed=None)) == "completed"  # no path to complete
+    dog = dict(ok, completed=0.0, protective_stops=1)
+    assert campaign._progress_end(dog) == "ran to its end, path not completed, 1 protective stop"
+    bad = dict(ok, end="not completed", completed=0.0, collisions=2, false_stops=1)
+    assert campaign._progress_end(bad) == "not completed, 2 contacts, 1 false stop"
+
+
 def test_a_closed_loop_campaign_writes_its_table_tracks_and_errors(dog_campaign):
     out, _, written = dog_campaign
     assert written == ["campaign.png", "dog_short_errors.png", "dog_short_tracks.png"]

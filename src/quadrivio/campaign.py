@@ -285,6 +285,24 @@ def write_tables(out: str, rows: List[Dict], runs: List[Dict], meta: Dict) -> No
                   json.dumps({"meta": meta, "table": rows, "runs": runs}, indent=1, default=float).encode())
 
 
+def _progress_end(fig: Dict) -> str:
+    """How a closed-loop run ended, for its progress line, in the table's words: a run that
+    ends at its time limit (``run: end: duration``) ran to its end whether or not its path
+    completed (the dog that stays in the lane), so both are said; contacts and stops too."""
+    if fig.get("end") != "completed":
+        words = "not completed"
+    elif fig.get("completed") == 0.0:
+        words = "ran to its end, path not completed"
+    else:
+        words = "completed"
+    for key, name in (("collisions", "contact"), ("protective_stops", "protective stop"),
+                      ("false_stops", "false stop")):
+        n = fig.get(key)
+        if n:
+            words += f", {int(n)} {name}{'s' if n != 1 else ''}"
+    return words
+
+
 def _not_completed(runs: List[Dict], most: int = 20) -> List[str]:
     """campaign.md's lines naming each closed-loop run that did not complete and how it
     ended (its outcome: the planner's reason, the follower's, a time limit), in table order;
@@ -500,7 +518,7 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
         _log(f"{len(runs)}/{total} {s.name} seed {seed}: "
              + (f"RMSE {rmse:.3f} m" if rmse is not None else "no estimate")
              + (f" (raw GPS {gps:.3f} m)" if gps else "")
-             + (f", {fig['end']}" if args.closed_loop else "") + f", {elapsed:.0f} s elapsed")
+             + (f", {_progress_end(fig)}" if args.closed_loop else "") + f", {elapsed:.0f} s elapsed")
     return new_sim
 
 
