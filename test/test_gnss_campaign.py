@@ -176,3 +176,26 @@ def test_the_local_cluster_runs_without_dasks_profiler_and_shares_no_port():
             links = cluster.dashboard_link, other.dashboard_link
     assert not [str(w.message) for w in caught if "already in use" in str(w.message)]
     assert links[0] != links[1] and all(link.startswith("http://127.0.0.1:") for link in links), links
+
+
+def test_ros_runs_get_two_cores_each_by_default(monkeypatch, capsys):
+    """A local cluster has a worker per core, but --ros one per two cores: two ROS stacks on
+    two cores starve each other's planner (its wall-clock budget); more is warned about."""
+    monkeypatch.setattr(campaign.os, "cpu_count", lambda: 8)
+    monkeypatch.setattr(campaign, "local_cluster", lambda n: n)
+
+    def workers(*extra):
+        args = campaign.parse(["rtk", "orchard", "--seeds", "8", "--out", "x", *extra])
+        return campaign._start_cluster(args).result()
+
+    assert workers() == 8 and workers("--closed-loop") == 8
+    assert workers("--closed-loop", "--ros") == 4
+    said = capsys.readouterr()
+    assert "ROS stacks" not in said.out + said.err
+    assert workers("--closed-loop", "--ros", "--workers", "6") == 6
+    said = capsys.readouterr()
+    assert "6 ROS stacks on 8 cores" in said.out + said.err
+    monkeypatch.setattr(campaign.os, "cpu_count", lambda: 1)
+    assert workers("--closed-loop", "--ros") == 1  # the best one core can do: no warning
+    said = capsys.readouterr()
+    assert "ROS stacks" not in said.out + said.err

@@ -438,7 +438,8 @@ def parse(argv):
                    help="with --closed-loop: each run through experiment instead (the ROS stack, a master each)")
     p.add_argument("--rtf", type=float, default=None, help="--closed-loop --ros: real-time factor (default: the "
                                                              "scenario's)")
-    p.add_argument("--workers", type=int, default=None, help="local cluster processes (default: CPU count)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local cluster processes (default: CPU count; --ros: one per two cores, see docs/campaigns.md)")
     p.add_argument("--scheduler", default=None, help="address of a Dask scheduler instead of a local cluster")
     p.add_argument("--settle", type=float, default=20.0, help="[s] error statistics start here (default 20)")
     p.add_argument("--run-plots", choices=("notable", "all", "none"), default=None,
@@ -522,6 +523,21 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
     return new_sim
 
 
+# Cores one free-running ROS stack wants: the nodes use 0.44-0.8 of a core per simulated
+# second at factor 1 and the planner a whole one while it searches, on a wall-clock budget.
+# Two stacks on two cores (the orchard with a blocked lane, seed 0): the replan took three
+# attempts over 13 s of sim time and the guard stopped the vehicle for 5.9 s; alone, one of 1.3 s
+# and no stop, as in one process.
+ROS_CORES_PER_STACK = 2
+
+
+def default_workers(ros: bool) -> int:
+    """Local workers by default: a core each in one process; with ``--ros``, a ROS stack per
+    ``ROS_CORES_PER_STACK`` cores (at least one)."""
+    cores = os.cpu_count() or 1
+    return max(1, cores // ROS_CORES_PER_STACK) if ros else cores
+
+
 def _start_cluster(args):
     """A local cluster of ``--workers`` processes (at most one per possible run), started in a
     thread: its workers start (a third of a second, about a core's worth of imports) while this
@@ -531,7 +547,11 @@ def _start_cluster(args):
         return None
     from concurrent.futures import ThreadPoolExecutor
 
-    workers = min(args.workers or os.cpu_count() or 1, len(args.scenarios) * args.seeds)
+    workers = min(args.workers or default_workers(args.ros), len(args.scenarios) * args.seeds)
+    if args.ros and workers > 1 and workers * ROS_CORES_PER_STACK > (os.cpu_count() or 1):
+        _log(f"{workers} ROS stacks on {os.cpu_count()} cores: each wants {ROS_CORES_PER_STACK} (a core's searches for "
+             f"the planner on its wall-clock budget beside the nodes' own load), so replans may time out and the guard "
+             f"stop the vehicle where a stack alone would not (docs/campaigns.md)")
     pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-cluster")
     starting = pool.submit(local_cluster, workers)
     pool.shutdown(wait=False)  # the thread ends with its one task
