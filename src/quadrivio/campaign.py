@@ -523,11 +523,9 @@ def _run_jobs(client, jobs, args, mode: str, runs: List[Dict], total: int, failu
     return new_sim
 
 
-# Cores one free-running ROS stack wants: the nodes use 0.44-0.8 of a core per simulated
-# second at factor 1 and the planner a whole one while it searches, on a wall-clock budget.
-# Two stacks on two cores (the orchard with a blocked lane, seed 0): the replan took three
-# attempts over 13 s of sim time and the guard stopped the vehicle for 5.9 s; alone, one of 1.3 s
-# and no stop, as in one process.
+# Cores one free-running ROS stack wants: its nodes about half a core per simulated second at
+# factor 1, and its planner a whole one while it searches on a wall-clock budget. Fewer, and a
+# run's outcome depends on the campaign's own load (docs/campaigns.md has the measurement).
 ROS_CORES_PER_STACK = 2
 
 
