@@ -73,14 +73,9 @@ size_t qv_guard_defaults(char* out, size_t size)
     std::snprintf(line, sizeof(line), "%s %d\n", kv.first.c_str(), *kv.second);
     text += line;
   }
-  const std::pair<const char*, double> node[] = { { "request_timeout", c.request_timeout },
-                                                  { "ground_tolerance", c.ground_tolerance },
-                                                  { "ground_position_sigmas", c.ground_position_sigmas },
-                                                  { "ground_tolerance_max", c.ground_tolerance_max },
-                                                  { "ground_position_sd_min", c.ground_position_sd_min } };
-  for (const auto& kv : node)
+  for (const auto& kv : g::nodeKeys(c))
   {
-    std::snprintf(line, sizeof(line), "node_%s %.17g\n", kv.first, kv.second);
+    std::snprintf(line, sizeof(line), "node_%s %.17g\n", kv.first.c_str(), *kv.second);
     text += line;
   }
   if (out != nullptr && size > text.size())

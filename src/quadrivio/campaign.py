@@ -546,8 +546,9 @@ def _start_cluster(args):
     from concurrent.futures import ThreadPoolExecutor
 
     workers = min(args.workers or default_workers(args.ros), len(args.scenarios) * args.seeds)
-    if args.ros and workers > 1 and workers * ROS_CORES_PER_STACK > (os.cpu_count() or 1):
-        _log(f"{workers} ROS stacks on {os.cpu_count()} cores: each wants {ROS_CORES_PER_STACK} (a core's searches for "
+    cores = os.cpu_count() or 1
+    if args.ros and workers > 1 and workers * ROS_CORES_PER_STACK > cores:
+        _log(f"{workers} ROS stacks on {cores} cores: each wants {ROS_CORES_PER_STACK} (a core's searches for "
              f"the planner on its wall-clock budget beside the nodes' own load), so replans may time out and the guard "
              f"stop the vehicle where a stack alone would not (docs/campaigns.md)")
     pool = ThreadPoolExecutor(1, thread_name_prefix="campaign-cluster")

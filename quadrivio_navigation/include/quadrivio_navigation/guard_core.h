@@ -1622,12 +1622,23 @@ inline void paramKeys(Config& c, std::map<std::string, double*>& fields, std::ma
   };
 }
 
+// The node's numeric keys (``node <name> <value>`` lines, each optional) and where ``c`` holds them
+inline std::map<std::string, double*> nodeKeys(Config& c)
+{
+  return { { "request_timeout", &c.request_timeout },
+           { "ground_tolerance", &c.ground_tolerance },
+           { "ground_position_sigmas", &c.ground_position_sigmas },
+           { "ground_tolerance_max", &c.ground_tolerance_max },
+           { "ground_position_sd_min", &c.ground_position_sd_min } };
+}
+
 // Read a configuration from ``in``; false with ``error`` naming the line that is wrong
 inline bool readConfig(FILE* in, Config& c, std::string& error)
 {
   std::map<std::string, double*> fields;
   std::map<std::string, int*> counts;
   paramKeys(c, fields, counts);
+  std::map<std::string, double*> node = nodeKeys(c);
   std::map<std::string, bool> seen;
   char line[4096];
   bool has_body = false, has_vehicle = false;
@@ -1699,16 +1710,8 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
       std::copy(x, x + 3, c.imu_xyz);
     else if (std::sscanf(line, "node base_frame %255s", a) == 1)
       c.base_frame = a;
-    else if (std::sscanf(line, "node request_timeout %lf", &x[0]) == 1)
-      c.request_timeout = x[0];
-    else if (std::sscanf(line, "node ground_tolerance %lf", &x[0]) == 1)
-      c.ground_tolerance = x[0];
-    else if (std::sscanf(line, "node ground_position_sigmas %lf", &x[0]) == 1)
-      c.ground_position_sigmas = x[0];
-    else if (std::sscanf(line, "node ground_tolerance_max %lf", &x[0]) == 1)
-      c.ground_tolerance_max = x[0];
-    else if (std::sscanf(line, "node ground_position_sd_min %lf", &x[0]) == 1)
-      c.ground_position_sd_min = x[0];
+    else if (std::sscanf(line, "node %255s %lf", a, &x[0]) == 2 && node.count(a) != 0)
+      *node[a] = x[0];
     else if (std::sscanf(line, "terrain %d %d %lf %lf %lf", &c.terrain.rows, &c.terrain.cols, &x[0], &x[1], &x[2]) == 5)
     {
       Heightfield& hf = c.terrain;
