@@ -1,6 +1,7 @@
 """The closed loop in one process (quadrivio.closed_loop): the same seed gives the same run,
 array for array; the guard on its path stops the vehicle for a person; what it cannot run
 is refused with the reason. (Its parity with the ROS stack: test_closed_loop_parity.py.)"""
+import math
 import os
 
 import numpy as np
@@ -61,6 +62,63 @@ def test_the_guard_stops_the_vehicle_short_of_a_person(tmp_path):
     assert m["time_blocked_s"] > 5.0  # held in front of the person, not driven around or through
     speed = r.run.ground_truth["vx"][r.run.ground_truth.t > 20.0]
     assert np.all(np.abs(speed) < 0.1)
+
+
+def _with(folder, name, edit) -> str:
+    with open(resolve(name)) as f:
+        data = yaml.safe_load(f)
+    if data.get("map", {}).get("file"):  # relative to the scenario's folder
+        data["map"]["file"] = os.path.join(os.path.dirname(resolve(name)), data["map"]["file"])
+    edit(data)
+    path = folder / f"{data['name']}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def test_the_simulated_drivers_no_echo_reads_back():
+    """What the laser adapters publish for each no_return (quadrivio_sim.noise.driver_ranges)
+    the guard's and the layer's reading (fields.rep117_ranges) turns back into REP 117."""
+    from quadrivio_navigation.fields import rep117_ranges
+    from quadrivio_sim.noise import driver_ranges
+
+    rep = [math.inf, 5.0, 0.1, 30.0, -math.inf, math.nan, math.inf]
+    assert driver_ranges(rep, 30.0, "zero")[:4] == [0.0, 5.0, 0.1, 30.0]
+    assert driver_ranges(rep, 30.0, "beyond_max")[0] == 31.0
+    for mode in ("inf", "zero", "beyond_max"):
+        assert np.array_equal(rep117_ranges(driver_ranges(rep, 30.0, mode), 30.0, mode), rep, equal_nan=True), mode
+    with pytest.raises(ValueError, match="no_return 'nan'"):
+        driver_ranges(rep, 30.0, "nan")
+
+
+def test_lasers_whose_drivers_predate_rep117_make_the_same_run_once_the_guard_is_told(tmp_path):
+    """The lasers published as LMS1xx (no echo: 0.0) and pointcloud_to_laserscan without use_inf
+    (range_max + 1) publish them. With the guard's scanners' no_return saying so, a lane crossed
+    by a person, replanned around the local layer's marks, is the REP 117 run array for array
+    (the layer reads the guard's scanners). Without, in the open field of the figure eight the
+    guard stops the vehicle from the start, and the run's log says why and what to set."""
+    lasers = {"laser_front": {"no_return": "zero"}, "laser_rear": {"no_return": "beyond_max"}}
+    told = {"scanners": [{"topic": "scan/front", "frame": "laser_front", "covers": "forward", "no_return": "zero"},
+                         {"topic": "scan/rear", "frame": "laser_rear", "covers": "reverse",
+                          "no_return": "beyond_max"}]}
+
+    def legacy(data, guard=None):
+        data["name"] += "_legacy"
+        data.setdefault("sensors", {}).update(lasers)
+        if guard:
+            data["guard"] = guard
+    a = closed_loop.run(load_scenario("orchard_crossing"), 0, max_duration=13.0)
+    b = closed_loop.run(load_scenario(_with(tmp_path, "orchard_crossing", lambda d: legacy(d, told))), 0,
+                        max_duration=13.0)
+    for name in STREAMS:
+        assert _same(getattr(a.run, name), getattr(b.run, name)), name
+    pa, pb = a.run.planner, b.run.planner  # (its planning_time is wall time)
+    assert np.array_equal(pa.t, pb.t) and np.array_equal(pa["length"], pb["length"])
+    assert np.array_equal(a.run.local_marks, b.run.local_marks) and len(a.run.local_marks) > 0
+    assert len(a.run.planner) >= 2 and np.any(a.run.guard["limit"] < 2.0)  # replanned, slowed: both were tested
+    c = closed_loop.run(load_scenario(_with(tmp_path, "figure_eight", legacy)), 0, max_duration=6.0)
+    assert np.all(np.abs(c.run.ground_truth["vx"]) < 0.05)
+    assert any("guard FAULT: scan/front blinded: 100 % of its rays invalid, 100 % read 0 m" in line and
+               line.endswith("no_return: zero") for _, line in c.log), c.log
 
 
 def test_a_goal_without_a_map_is_refused(tmp_path):

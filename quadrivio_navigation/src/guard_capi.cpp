@@ -104,11 +104,12 @@ void qv_guard_on_pose(void* handle, double stamp, double x, double y, double yaw
 }
 
 // Scanner ``index`` (the configuration's order): ``n`` points (x, y interleaved, base_link) of
-// a scan of ``n_rays`` rays, ``n_invalid`` of them invalid, and, with ``geometry`` not null,
+// a scan of ``n_rays`` rays, ``n_invalid`` of them invalid (``n_zero`` of those 0.0, ``n_beyond``
+// beyond range_max), and, with ``geometry`` not null,
 // its rays (fields.Rays: ox, oy, m00, m01, m10, m11, angle_min, increment; ``free``: n_rays
 // values); or, with ``error`` not null, a scan that came but cannot be used, and why
 void qv_guard_on_scan(void* handle, size_t index, double stamp, const double* xy, size_t n, int n_rays, int n_invalid,
-                      const double* geometry, const double* free, const char* error)
+                      int n_zero, int n_beyond, const double* geometry, const double* free, const char* error)
 {
   g::Guard& guard = *static_cast<Handle*>(handle)->guard;
   if (error != nullptr)
@@ -119,6 +120,8 @@ void qv_guard_on_scan(void* handle, size_t index, double stamp, const double* xy
   g::ScanPoints sp;
   sp.n_rays = n_rays;
   sp.n_invalid = n_invalid;
+  sp.n_zero = n_zero;
+  sp.n_beyond = n_beyond;
   sp.xy.resize(n);
   for (size_t i = 0; i < n; ++i)
     sp.xy[i] = g::Point{ xy[2 * i], xy[2 * i + 1] };

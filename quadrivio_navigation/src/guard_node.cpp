@@ -146,7 +146,8 @@ public:
       subs_.push_back(lockstep_.subscribe("localization/predicted", 5, &GuardNode::onPose, this));
     std::string scanners;
     for (const auto& s : p.scanners)
-      scanners += (scanners.empty() ? "" : ", ") + s.topic + " (" + s.covers + ")";
+      scanners += (scanners.empty() ? "" : ", ") + s.topic + " (" + s.covers +
+                  (s.no_return == "inf" ? "" : ", no echo reported as " + s.no_return) + ")";
     ROS_INFO("obstacle guard (roscpp): %s; brake %.1f m/s^2 after %.2f s, margins %.2f / %.2f m%s%s", scanners.c_str(),
              p.brake_decel, p.brake_latency, p.margin, p.warning_margin,
              p.zone.empty() ? "" : g::format(", operating zone of %zu vertices", p.zone.size()).c_str(),
@@ -363,9 +364,16 @@ private:
       core_->onScan(index, stamp, nullptr, "no transform " + config_.base_frame + " <- " + s.frame + " on /tf_static");
     else
     {
-      const std::vector<char> on_ground = ground(m, mt, t);
+      const sensor_msgs::LaserScan* scan = &m;
+      if (s.no_return != "inf")  // the driver's "nothing seen" as REP 117's +inf (a copy: the message is shared)
+      {
+        decoded_ = m;
+        g::rep117Ranges(decoded_.ranges, m.range_max, s.no_return);
+        scan = &decoded_;
+      }
+      const std::vector<char> on_ground = ground(*scan, mt, t);
       const g::ScanPoints pts =
-          g::scanPoints(m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, mt.t[0], mt.t[1],
+          g::scanPoints(scan->ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, mt.t[0], mt.t[1],
                         std::atan2(mt.R[3], mt.R[0]), kMaxRange, mt.R, on_ground.empty() ? nullptr : &on_ground);
       core_->onScan(index, stamp, &pts);
     }
@@ -449,8 +457,7 @@ private:
     m.slope = d.slope;
     m.protective_stops = static_cast<uint32_t>(core_->protective_stops);
     lockstep_.publish(pub_status_, m);
-    const bool slow_clear = (d.action == g::SLOW && before == g::CLEAR) || (d.action == g::CLEAR && before == g::SLOW);
-    if (d.action != before && before >= 0 && !slow_clear)
+    if (log_.worth(now(), d.action, before, d.reason))
     {
       const std::string text = std::string("guard ") + g::actionName(d.action) + (d.reason.empty() ? "" : ": ") +
                                d.reason;
@@ -538,6 +545,8 @@ private:
   std::vector<std::unique_ptr<ScanSub>> scan_subs_;
   std::map<std::string, geometry_msgs::TransformStamped> static_;
   std::map<std::string, Mount> mounts_;
+  sensor_msgs::LaserScan decoded_;  // a scan whose driver is not REP 117's, its ranges made so
+  g::DecisionLog log_;              // which decisions are logged
   bool ok_ = false, has_request_ = false, has_last_action_ = false, has_pose_ = false;
   double request_[4] = { 0, 0, 0, 0 }, pose_[5] = { 0, 0, 0, 0, 0 };  // stamp, x, y, yaw, horizontal sd
   int last_action_ = 0;

@@ -3,8 +3,9 @@
 // (quadrivio_navigation/ros/guard_config.py's format, up to "end"), then one event per line:
 //   state T V H | pitch T P | pose T X Y YAW SD | scanerr I T REASON...
 //   scan I T N_RAYS N_INVALID N X1 Y1 ... XN YN   (points in base_link)
-//   ranges I T ANGLE_MIN INC RMIN RMAX MX MY MYAW MAX_RANGE N R1..RN   (a scan through scanPoints, rays
-//                                          included; ranges as float32, inf and nan spelled so)
+//   ranges I T ANGLE_MIN INC RMIN RMAX MX MY MYAW MAX_RANGE N R1..RN   (a scan through rep117Ranges (the
+//                                          scanner's no_return) and scanPoints, rays included; ranges as
+//                                          float32, inf and nan spelled so)
 //   decide NOW SPEED HANDLEBAR BRAKE   -> "decision ACTION LIMIT FREE PROT PROT_REQ WARN HAS_NEAREST NX NY
 //                                          SCAN_STAMP DIRECTION SLOPE SP_SPEED SP_HANDLEBAR SP_BRAKE STOPS FAULTS
 //                                          ZONE_STOPS|FIELD|SCANNER|REASON"
@@ -81,6 +82,7 @@ int main()
         in >> word;
         r = std::strtof(word.c_str(), nullptr);
       }
+      g::rep117Ranges(ranges, rmax, config.params.scanners.at(i).no_return);
       const g::ScanPoints sp = g::scanPoints(ranges, amin, inc, rmin, rmax, mx, my, myaw, max_range, nullptr);
       guard.onScan(i, t, &sp);
     }

@@ -131,6 +131,57 @@ def test_rep117_ranges():
     assert sp.xy[0] == pytest.approx([1.0 + 2.0 * math.cos(0.5), -2.0 * math.sin(0.5)])
 
 
+def test_drivers_older_than_rep117_are_read_by_their_no_return():
+    """A driver reports a ray that saw nothing as REP 117's +inf, as 0.0 (LMS1xx without
+    publish_min_range_as_inf, older sick_tim) or beyond range_max (pointcloud_to_laserscan
+    without use_inf: range_max + 1). The scanner's no_return turns exactly that into +inf
+    and nothing else: a Hokuyo's error codes below range_min stay invalid, -inf and NaN stay.
+    (What the simulator's adapters publish for each reads back as it was: test_closed_loop.)"""
+    from quadrivio_navigation.fields import blinded_reason, rep117_ranges
+
+    raw = [0.0, 0.004, 31.0, 30.0, 5.0, -math.inf, math.nan, math.inf]
+    want = {"inf": raw,
+            "zero": [math.inf, 0.004, 31.0, 30.0, 5.0, -math.inf, math.nan, math.inf],
+            "beyond_max": [0.0, 0.004, math.inf, 30.0, 5.0, -math.inf, math.nan, math.inf]}
+    for mode, out in want.items():
+        assert np.array_equal(rep117_ranges(raw, 30.0, mode), out, equal_nan=True), mode
+    with pytest.raises(ValueError, match="no_return 'nan': expected one of inf, zero, beyond_max"):
+        rep117_ranges(raw, 30.0, "nan")
+    with pytest.raises(ConfigError, match="no_return"):
+        from_mapping(GuardParams, {"scanners": [{"topic": "scan", "frame": "laser", "no_return": "0"}]})
+    # the invalid rays that read 0.0 or beyond range_max are counted, and the blinded reason says so
+    sp = scan_points(raw, -0.4, 0.1, 0.1, 30.0, (1.0, 0.0, 0.0))
+    assert (sp.n_invalid, sp.n_zero, sp.n_beyond) == (4, 1, 1)  # 0.0, 0.004, 31, NaN
+    assert blinded_reason("scan/front", 8, 4, 1, 1) == "scan/front blinded: 50 % of its rays invalid"
+    assert blinded_reason("scan/front", 10, 8, 7, 0) == (
+        "scan/front blinded: 80 % of its rays invalid, 70 % read 0 m: a driver that reports no echo so needs the "
+        "scanner's no_return: zero")
+    assert blinded_reason("scan/rear", 10, 6, 0, 4).endswith("40 % beyond range_max: a driver that reports no "
+                                                            "echo so needs the scanner's no_return: beyond_max")
+
+
+def test_what_the_guard_logs():
+    """A change of action (not between CLEAR and SLOW, not into the first decision), and a
+    FAULT that lasts, again every FAULT_RELOG s while its reason is not the one logged."""
+    from quadrivio_navigation.guard import FAULT_RELOG, DecisionLog
+
+    log = DecisionLog()
+    seq = [(0.0, FAULT, None, "no scan yet from scan/front"),  # the first: not logged
+           (0.1, FAULT, FAULT, "no scan yet from scan/front"),
+           (1.0, CLEAR, FAULT, ""), (2.0, SLOW, CLEAR, "obstacle"), (2.5, CLEAR, SLOW, ""),
+           (3.0, STOP, CLEAR, "obstacle"), (3.5, HOLD, STOP, "obstacle"), (4.0, FAULT, HOLD, "blinded 90 %"),
+           (4.1, FAULT, FAULT, "blinded 91 %"),  # the same FAULT, its numbers moving: not yet
+           (4.0 + FAULT_RELOG - 0.01, FAULT, FAULT, "silent"),
+           (4.0 + FAULT_RELOG, FAULT, FAULT, "silent"),  # lasted: its new reason
+           (4.0 + 2 * FAULT_RELOG, FAULT, FAULT, "silent"),  # the one logged
+           (4.0 + 2 * FAULT_RELOG, CLEAR, FAULT, "")]
+    assert [log.worth(*e) for e in seq] == [False, False, True, False, False, True, True, True, False, False,
+                                            True, False, True]
+    stuck = DecisionLog()  # a FAULT from the start (a laser whose driver never started): logged once it lasts
+    assert [stuck.worth(t, FAULT, None if t == 0.0 else FAULT, "no scan yet") for t in (0.0, 1.0, FAULT_RELOG)] \
+        == [False, False, True]
+
+
 @pytest.mark.parametrize("args,words", [
     ((271, -2.35, 2.35, 0.0, 0.1, 30.0), "angle_increment is 0"),
     ((100, -2.35, 2.35, 0.0174, 0.1, 30.0), "100 ranges"),

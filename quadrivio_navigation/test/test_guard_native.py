@@ -16,8 +16,8 @@ import pytest
 from quadrivio_config import replace_nested
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_description.attitude import Attitude, imu_lever
-from quadrivio_navigation.fields import ScanPoints, scan_points
-from quadrivio_navigation.guard import Guard, GuardParams
+from quadrivio_navigation.fields import ScanPoints, rep117_ranges, scan_points
+from quadrivio_navigation.guard import FAULT, STOP, Guard, GuardParams
 from quadrivio_navigation.local_layer import base_on_wheels, dem_ground, wheel_centres
 from quadrivio_navigation.ros.guard_config import emit
 from quadrivio_description.frames import rpy_matrix
@@ -122,6 +122,7 @@ def _drive(g, events, p, states=None):
             g.on_scan(p.scanners[i].topic, t, ScanPoints(pts, n_rays, invalid, 0))
         elif e[0] == "ranges":
             _, i, t, (amin, inc, rmin, rmax, mx, my, myaw, max_range), rr = e
+            rr = rep117_ranges(rr, rmax, p.scanners[i].no_return)  # as guard_node.cpp and guard_replay
             g.on_scan(p.scanners[i].topic, t, scan_points(rr, amin, inc, rmin, rmax, (mx, my, myaw), max_range))
         elif e[0] == "scanerr":
             g.on_scan(p.scanners[e[1]].topic, e[2], None, e[3])
@@ -377,6 +378,8 @@ def test_what_a_scan_saw_through_matches_the_python_core():
     (lambda t: "\n".join(ln for ln in t.splitlines() if not ln.startswith("param track_max_points ")) + "\n",
      "no value for parameter 'track_max_points'"),
     (lambda t: t.replace("param track_coast ", "param track_coasting "), "unknown parameter 'track_coasting'"),
+    (lambda t: t.replace("laser_front forward inf", "laser_front forward 0"),
+     "scanner scan/front: no_return '0': expected one of inf, zero, beyond_max"),
 ])
 def test_the_cpp_reader_names_a_bad_configuration(edit, error):
     """The roscpp guard's reader (guard_core.h readConfig): the tracker's whole-number keys
@@ -476,3 +479,60 @@ def test_the_cores_defaults_are_guard_yamls():
     assert node_keys, "the C++ core reports no node keys"
     differ = {k: (v, getattr(node, k)) for k, v in node_keys.items() if v != getattr(node, k)}
     assert not differ, f"C++ default != GuardNodeParams default (C++, Python): {differ}"
+
+
+@pytest.mark.parametrize("no_return", ["zero", "beyond_max"])
+def test_a_driver_older_than_rep117_guards_as_one_that_follows_it(no_return):
+    """A laser whose driver reports a ray that saw nothing as 0.0 (LMS1xx, older sick_tim) or
+    beyond range_max (pointcloud_to_laserscan without use_inf), driving at a post among a few
+    in an open field: with the scanner's ``no_return`` saying so, every decision is the one on
+    the same scans in REP 117's terms, in the Python guard, the C++ replay and NativeGuard.
+    Under REP 117's ``no_return`` the same scans blind it: a FAULT whose reason says what the
+    rays read and which ``no_return`` would take them for nothing seen, word for word in both
+    cores."""
+    from test_tracks import ranges
+    vehicle = load_vehicle()
+    rng = np.random.default_rng(3)
+    posts = [(float(rng.uniform(5, 40)), float(rng.choice([-1, 1]) * rng.uniform(4, 15)), 0.1) for _ in range(8)]
+    posts.append((12.0, 0.3, 0.1))  # on the way
+    fov, rmin, rmax = math.radians(270.0), 0.05, 30.0
+    rep117, legacy = [], []
+    x, v = 0.0, 2.5
+    for k in range(250):
+        t = 1.0 + 0.02 * k
+        for ev in (rep117, legacy):
+            ev.append(("state", t, v, 0.0))
+        if k % 5 == 0:
+            rr = ranges((x, 0.0, 0.0), posts, mount=(1.7, 0.0), fov=fov, rng=rng, noise=0.01)
+            geometry = (-fov / 2, fov / 540, rmin, rmax, 1.7, 0.0, 0.0, 20.0)
+            rep117.append(("ranges", 0, t - 0.03, geometry, rr))
+            nothing = np.float32(0.0 if no_return == "zero" else rmax + 1.0)  # as the driver reports no echo
+            legacy.append(("ranges", 0, t - 0.03, geometry, np.where(np.isposinf(rr), nothing, rr)))
+            for ev in (rep117, legacy):
+                ev.append(("scan", 1, t - 0.03, 541, 0, np.zeros((0, 2))))
+        for ev in (rep117, legacy):
+            ev.append(("decide", t, 2.5, 0.0, 0.0))
+        v = max(0.0, v - 3.5 * 0.02) if k > 170 else v  # it brakes, as told or not: the stop's hold too
+        x += v * 0.02
+    told = replace_nested(GuardParams(), {"scanners": [
+        {"topic": "scan/front", "frame": "laser_front", "covers": "forward", "no_return": no_return},
+        {"topic": "scan/rear", "frame": "laser_rear", "covers": "reverse"}]})
+    ref = _python(rep117, GuardParams(), vehicle)
+    key = [(d.action, d.reason, d.limit, d.nearest) for d, *_ in ref]
+    acts = {k[0] for k in key}
+    assert STOP in acts and len(acts) >= 3, f"only actions {acts}: the comparison tests little"
+    for p in (told, GuardParams()):
+        py = _python(legacy, p, vehicle)
+        _compare(py, _run(_config(p, vehicle), _script(legacy)))
+        native, _ = _wrapped(legacy, p, vehicle)
+        assert [(d.action, d.reason, d.limit, d.nearest) for d, *_ in native] == \
+            [(d.action, d.reason, d.limit, d.nearest) for d, *_ in py]
+        if p is told:
+            assert [(d.action, d.reason, d.limit, d.nearest) for d, *_ in py] == key
+        else:
+            read = "read 0 m" if no_return == "zero" else "beyond range_max"
+            reasons = {d.reason for d, *_ in py}
+            assert {d.action for d, *_ in py} == {FAULT}
+            assert all(
+                r.startswith("scan/front blinded: ") and read in r and r.endswith(f"no_return: {no_return}")
+                for r in reasons), reasons

@@ -151,9 +151,10 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_localization.smoother import Localizer
     from quadrivio_description.attitude import Attitude, imu_lever
     from quadrivio_navigation.costmap import Footprint
-    from quadrivio_navigation.fields import ScanError, check_scan, scan_points
+    from quadrivio_navigation.fields import ScanError, check_scan, rep117_ranges, scan_points
     from quadrivio_navigation.follower import ABORTED, DONE, FOLLOWING, FollowerConfig, PurePursuit, make_route
-    from quadrivio_navigation.guard import FAULT, HOLD, STOP, Guard, GuardNodeParams, GuardParams, load_zone_file
+    from quadrivio_navigation.guard import (ACTION_NAMES, FAULT, HOLD, STOP, DecisionLog, Guard, GuardNodeParams,
+                                            GuardParams, load_zone_file)
     from quadrivio_navigation.local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_ground,
                                                   scan_in_map, terrain_ground, wheel_centres)
     from quadrivio_navigation.maps import OccupancyGrid as Grid
@@ -168,7 +169,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_sim.actuators import load_actuators
     from quadrivio_sim.adapter_params import (GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
                                               MagAdapterParams)
-    from quadrivio_sim.noise import sensor_models
+    from quadrivio_sim.noise import driver_ranges, sensor_models
     from quadrivio_sim.paths import package_file
     from quadrivio_sim.simulator import Simulator
     from quadrivio_sim.world import quat_to_rpy
@@ -253,6 +254,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         layer = LocalLayer(llp)
         l_att = Attitude(lever=lever)
         l_heights = heights if lnode.terrain_from_scenario else None
+        l_no_return = {sc.frame: sc.no_return for sc in (lnode.scanners or gp.scanners)}
     goal = tuple(pathp.goal) if pathp.kind == "goal" else None
     if layer is not None and goal is None and lnode.only_with_goal:
         layer = None  # the planner has no goal: the node reads no scans (only_with_goal)
@@ -360,6 +362,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     def guard_status(t: float, d, requested: float, handlebar: float) -> None:
         st = guard.state
         v_m, h_m = (st[1], st[2]) if st is not None else (math.nan, math.nan)
+        if glog.worth(t, d.action, rec.guard[-1][1] if rec.guard else None, d.reason):  # as the node logs it
+            log(t, f"guard {ACTION_NAMES[d.action]}{': ' + d.reason if d.reason else ''}")
         if stopped_something(d.action, v_m) and (not rec.guard or rec.guard[-1][1] != d.action):
             stops[0] += 1
             if len(stops[1]) < MAX_VIEWS:  # what it saw, for the stop's picture (stop_views)
@@ -379,6 +383,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             guard_held[1] = t
 
     guard_held = [-1.0, None]  # the follower's held_until, the planner's held_since
+    glog = DecisionLog()
     seen_scans: Dict[str, Tuple[float, np.ndarray]] = {}  # topic -> (stamp, points in base_link) the guard last read
     stops: List[object] = [0, []]  # how many stops, the first MAX_VIEWS as scenes
     held_points = HeldPoints()
@@ -407,7 +412,8 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         t_b, R_b = mounts[frame_]
         # the local layer (with a fresh pose)
         if layer is not None and pose is not None and t - pose[0] <= 0.5:
-            sensor, bearings, rr = scan_in_map(*pose[1:4], t_b, R_b, smp.angle_min, smp.angle_increment, ranges,
+            sensor, bearings, rr = scan_in_map(*pose[1:4], t_b, R_b, smp.angle_min, smp.angle_increment,
+                                               rep117_ranges(ranges, smp.range_max, l_no_return.get(frame_, "inf")),
                                                smp.range_min, smp.range_max)
             ground = None
             if l_heights is not None:
@@ -421,7 +427,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if t - stamp > gp.max_scan_age:
             counters["scans_rejected"] += 1
             return
-        rr = ranges
+        rr = ranges = rep117_ranges(ranges, smp.range_max, sc.no_return)  # the driver's "nothing seen" as +inf
         if g_heights is not None and pose is not None and t - pose[0] <= 0.5:
             ground = terrain_ground(g_heights, pose[1:4] + (pose[5],), g_att.roll, g_att.pitch, v.wheel_radius, t_b,
                                     R_b, gnode.ground_tolerance, 0.0, gnode.ground_position_sigmas,
@@ -429,7 +435,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
             gr = scan_ground(ground, ranges, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
                              MAX_RANGE)
             if gr.any():
-                rr = np.where(gr, np.inf, np.asarray(ranges, dtype=float))
+                rr = np.where(gr, np.inf, ranges)
         yaw_b = math.atan2(R_b[1, 0], R_b[0, 0])
         points = scan_points(rr, smp.angle_min, smp.angle_increment, smp.range_min, smp.range_max,
                              (float(t_b[0]), float(t_b[1]), yaw_b), MAX_RANGE, R_b)
@@ -486,7 +492,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 lp_, noise, lat_ = lasers[x.frame]
                 if lp_.noise.is_silent(x.stamp):
                     continue
-                ranges = noise.apply(x.ranges, x.range_min, x.range_max)
+                ranges = driver_ranges(noise.apply(x.ranges, x.range_min, x.range_max), x.range_max, lp_.no_return)
                 inflight.push(lat_.deliver_at(x.stamp), "scan", (x.frame, x, ranges))
             elif name == "actors":
                 rec.actors.append((t, [(a.name, a.kind, a.shape, a.x, a.y, a.yaw, a.size[0], a.size[1]) for a in x]))

@@ -39,6 +39,44 @@ inline const char* actionName(int a)
   return a >= 0 && a <= 4 ? names[a] : "?";
 }
 
+// Which decisions the node logs (guard.DecisionLog): a change of action, but not between
+// CLEAR and SLOW nor into the first; and a FAULT that lasts, again every kFaultRelog s while its
+// reason is not the one logged (a laser that comes back blinded: still stopped, for another
+// reason; and a FAULT from the start, once it has lasted kFaultRelog).
+constexpr double kFaultRelog = 5.0;  // [s]
+
+class DecisionLog
+{
+public:
+  // ``before``: the previous action, -1 for none
+  bool worth(double now, int action, int before, const std::string& reason)
+  {
+    if (!started_)
+    {
+      started_ = true;
+      t_ = now;
+    }
+    if (before < 0)
+      return false;
+    bool ok;
+    if (action != before)
+      ok = !((action == SLOW && before == CLEAR) || (action == CLEAR && before == SLOW));
+    else
+      ok = action == FAULT && reason != reason_ && now - t_ >= kFaultRelog;
+    if (ok)
+    {
+      reason_ = reason;
+      t_ = now;
+    }
+    return ok;
+  }
+
+private:
+  bool started_ = false;
+  double t_ = 0.0;
+  std::string reason_;
+};
+
 // printf into a std::string (the reasons carry the same text as the Python guard's)
 template <typename... Args>
 std::string format(const char* fmt, Args... args)
@@ -105,9 +143,50 @@ struct ScanPoints
 {
   std::vector<Point> xy;  // base_link
   int n_rays = 0, n_invalid = 0, n_too_close = 0;
+  int n_zero = 0, n_beyond = 0;  // of the invalid: exactly 0.0 below range_min; finite beyond range_max
   bool has_rays = false;  // false: the points alone (no test of what was seen through)
   Rays rays;
 };
+
+// A driver's ranges in REP 117's terms (fields.rep117_ranges): the rays it reports as having
+// seen nothing in its own way ``no_return`` become +inf: "inf" (REP 117: nothing changes),
+// "zero" (exactly 0.0), "beyond_max" (finite beyond range_max). "" or what is wrong.
+inline std::string rep117Ranges(std::vector<float>& ranges, double rmax, const std::string& no_return)
+{
+  const float inf = std::numeric_limits<float>::infinity();
+  if (no_return == "inf")
+    return "";
+  if (no_return == "zero")
+  {
+    for (float& r : ranges)
+      if (r == 0.0f)
+        r = inf;
+    return "";
+  }
+  if (no_return == "beyond_max")
+  {
+    for (float& r : ranges)
+      if (std::isfinite(r) && static_cast<double>(r) > rmax)
+        r = inf;
+    return "";
+  }
+  return "no_return '" + no_return + "': expected one of inf, zero, beyond_max";
+}
+
+// The blinded stop's reason (fields.blinded_reason, word for word)
+inline std::string blindedReason(const std::string& topic, int n_rays, int n_invalid, int n_zero, int n_beyond)
+{
+  const double n = std::max(n_rays, 1);
+  std::string out = format("%s blinded: %.0f %% of its rays invalid", topic.c_str(), 100.0 * n_invalid / n);
+  if (2 * n_zero > n_invalid)
+    out += format(", %.0f %% read 0 m: a driver that reports no echo so needs the scanner's no_return: zero",
+                  100.0 * n_zero / n);
+  else if (2 * n_beyond > n_invalid)
+    out += format(", %.0f %% beyond range_max: a driver that reports no echo so needs the scanner's "
+                  "no_return: beyond_max",
+                  100.0 * n_beyond / n);
+  return out;
+}
 
 // "" or what is wrong with a scan's geometry (fields.check_scan)
 inline std::string checkScan(size_t n, double angle_min, double angle_max, double inc, double rmin, double rmax)
@@ -185,6 +264,8 @@ inline ScanPoints scanPoints(const std::vector<float>& ranges, double angle_min,
     else if (r < rmin || r > rmax)
     {
       ++out.n_invalid;
+      out.n_zero += r == 0.0;
+      out.n_beyond += r > rmax;
       continue;
     }
     rays.free[i] = r;  // -inf: a return at range_min
@@ -973,6 +1054,7 @@ private:
 struct Scanner
 {
   std::string topic, frame, covers = "forward";  // covers: forward | reverse | both
+  std::string no_return = "inf";                 // inf (REP 117) | zero | beyond_max: rep117Ranges
 };
 
 struct Params
@@ -1091,6 +1173,7 @@ public:
       if (!v_.body.contains(q.x, q.y))
         sc.points.push_back(q);
     sc.invalid_fraction = static_cast<double>(points->n_invalid) / std::max(points->n_rays, 1);
+    sc.counts = { points->n_rays, points->n_invalid, points->n_zero, points->n_beyond };
     std::array<double, 3> e;
     if (egoAt(stamp, e))
       trackers_[i].update(stamp, sc.points, e[0], e[1], e[2], points->has_rays ? &points->rays : nullptr);
@@ -1279,6 +1362,7 @@ private:
     double stamp = -kInf;
     std::vector<Point> points;
     double invalid_fraction = 0.0;
+    std::array<int, 4> counts = { 0, 0, 0, 0 };  // the last scan's rays: all, invalid, 0.0, beyond range_max
     std::string error;
   };
   struct PoseState
@@ -1338,7 +1422,7 @@ private:
       if (!sc.error.empty())
         return s.topic + ": " + sc.error;
       if (sc.invalid_fraction > p_.blind_fraction)
-        return format("%s blinded: %.0f %% of its rays invalid", s.topic.c_str(), 100.0 * sc.invalid_fraction);
+        return blindedReason(s.topic, sc.counts[0], sc.counts[1], sc.counts[2], sc.counts[3]);
     }
     return "";
   }
@@ -1686,7 +1770,15 @@ inline bool readConfig(FILE* in, Config& c, std::string& error)
       seen[a] = true;
     }
     else if (std::sscanf(line, "scanner %255s %255s %255s", a, b, d) == 3)
-      c.params.scanners.push_back(Scanner{ a, b, d });
+    {
+      char e[256] = "inf";
+      std::sscanf(line, "scanner %*s %*s %*s %255s", e);
+      std::vector<float> none;
+      const std::string bad = rep117Ranges(none, 1.0, e);
+      if (!bad.empty())
+        return error = "scanner " + std::string(a) + ": " + bad, false;
+      c.params.scanners.push_back(Scanner{ a, b, d, e });
+    }
     else if (std::sscanf(line, "zone %lf %lf", &x[0], &x[1]) == 2)
       c.params.zone.push_back(Point{ x[0], x[1] });
     else if (std::sscanf(line, "body %lf %lf %lf %lf", &x[0], &x[1], &x[2], &x[3]) == 4)

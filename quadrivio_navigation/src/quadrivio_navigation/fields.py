@@ -38,7 +38,13 @@ so that a vehicle slowed down to ``v_allow(d_free)`` stays out of its protective
 
 **Laser ranges** follow REP 117: NaN is an invalid reading, +inf means nothing within
 ``range_max``, -inf an object closer than ``range_min`` (taken at ``range_min`` along its
-ray); a finite range outside ``[range_min, range_max]`` is invalid (older drivers).
+ray); a finite range outside ``[range_min, range_max]`` is invalid. Drivers older than REP
+117 report a ray that saw nothing otherwise: 0.0 (LMS1xx without
+``publish_min_range_as_inf``, sick_tim before 2018, an Ouster's scan) or a range beyond
+``range_max`` (pointcloud_to_laserscan with ``use_inf`` false: ``range_max + 1``). A scanner's
+``no_return`` names its driver's way, and :func:`rep117_ranges` turns it into +inf; a scan
+that reads mostly so under the wrong ``no_return`` is invalid, and its blinded stop says
+which value it read (:func:`blinded_reason`).
 """
 
 from __future__ import annotations
@@ -76,6 +82,42 @@ class ScanPoints:
     n_invalid: int  # NaN, or finite outside [range_min, range_max]
     n_too_close: int  # -inf (REP 117)
     rays: Optional[Rays] = None  # None: the points alone (no test of what was seen through)
+    n_zero: int = 0  # of the invalid: exactly 0.0 below range_min (no echo, to drivers older than REP 117)
+    n_beyond: int = 0  # of the invalid: finite beyond range_max (no echo, to pointcloud_to_laserscan and others)
+
+
+NO_RETURN = ("inf", "zero", "beyond_max")
+
+
+def rep117_ranges(ranges: Sequence[float], range_max: float, no_return: str = "inf") -> np.ndarray:
+    """A driver's ranges in REP 117's terms: the rays it reports as having seen nothing, in
+    its own way ``no_return``, become +inf. ``inf``: REP 117 itself (nothing changes);
+    ``zero``: exactly 0.0; ``beyond_max``: a finite range beyond ``range_max``. Such a driver
+    cannot tell nothing seen from a window too dirty to see through: with ``zero`` or
+    ``beyond_max`` those rays no longer count as invalid, and no longer blind the guard."""
+    r = np.asarray(ranges, dtype=float)
+    if no_return == "inf":
+        return r
+    if no_return == "zero":
+        return np.where(r == 0.0, np.inf, r)
+    if no_return == "beyond_max":
+        return np.where(np.isfinite(r) & (r > range_max), np.inf, r)
+    raise ValueError(f"no_return {no_return!r}: expected one of {', '.join(NO_RETURN)}")
+
+
+def blinded_reason(topic: str, n_rays: int, n_invalid: int, n_zero: int, n_beyond: int) -> str:
+    """The blinded stop's reason; when most invalid rays read 0.0 or beyond range_max, it
+    says so and names the scanner's ``no_return`` that would take them for nothing seen
+    (guard_core.h's blindedReason, word for word)."""
+    n = max(n_rays, 1)
+    out = f"{topic} blinded: {100.0 * n_invalid / n:.0f} % of its rays invalid"
+    if 2 * n_zero > n_invalid:
+        out += (f", {100.0 * n_zero / n:.0f} % read 0 m: a driver that reports no echo so needs the scanner's "
+                "no_return: zero")
+    elif 2 * n_beyond > n_invalid:
+        out += (f", {100.0 * n_beyond / n:.0f} % beyond range_max: a driver that reports no echo so needs the "
+                "scanner's no_return: beyond_max")
+    return out
 
 
 class ScanError(ValueError):
@@ -137,7 +179,8 @@ def scan_points(ranges: Sequence[float], angle_min: float, increment: float, ran
     free = np.where(finite & ~bad, r, np.where(np.isposinf(r), float(range_max),
                                                 np.where(too_close, float(range_min), np.nan)))
     rays = Rays((float(mount[0]), float(mount[1])), m, float(angle_min), float(increment), free)
-    return ScanPoints(xy, len(r), int(np.count_nonzero(bad)), int(np.count_nonzero(too_close)), rays)
+    return ScanPoints(xy, len(r), int(np.count_nonzero(bad)), int(np.count_nonzero(too_close)), rays,
+                      int(np.count_nonzero(bad & (r == 0.0))), int(np.count_nonzero(bad & (r > range_max))))
 
 
 def sweep(direction: int, h0: float, h1: float, rate: float, speed: float, length: float, ds: float,

@@ -55,10 +55,36 @@ from quadrivio_description.vehicle import VehicleParams
 
 from .costmap import Footprint
 from .tracks import MotionTracker, TrackParams
-from .fields import (ScanPoints, allowed_speed, effective_decel, free_distance, inside, stopping_distance, sweep)
+from .fields import (NO_RETURN, ScanPoints, allowed_speed, blinded_reason, effective_decel, free_distance, inside,
+                     stopping_distance, sweep)
 
 CLEAR, SLOW, STOP, HOLD, FAULT = 0, 1, 2, 3, 4
 ACTION_NAMES = {CLEAR: "CLEAR", SLOW: "SLOW", STOP: "STOP", HOLD: "HOLD", FAULT: "FAULT"}
+FAULT_RELOG = 5.0  # [s] a FAULT that lasts is logged again this often while its reason is not the one logged
+
+
+class DecisionLog:
+    """Which decisions the guard logs: a change of action, but not between CLEAR and SLOW nor
+    into the first; and a FAULT that lasts, again every ``FAULT_RELOG`` s while its reason is
+    not the one logged (a laser that comes back blinded: still stopped, for another reason; a
+    FAULT from the start, once it has lasted ``FAULT_RELOG``). guard_core.h's DecisionLog."""
+
+    def __init__(self) -> None:
+        self.reason = ""
+        self.t: Optional[float] = None
+
+    def worth(self, now: float, action: int, before: Optional[int], reason: str) -> bool:
+        if self.t is None:
+            self.t = now
+        if before is None:
+            return False
+        if action != before:
+            ok = {action, before} != {CLEAR, SLOW}
+        else:
+            ok = action == FAULT and reason != self.reason and now - self.t >= FAULT_RELOG
+        if ok:
+            self.reason, self.t = reason, now
+        return ok
 
 
 @dataclass(frozen=True)
@@ -67,6 +93,10 @@ class ScannerParams:
     frame: str = param(doc="the frame_id its scans must carry")
     covers: str = param("forward", choices=("forward", "reverse", "both"),
                         doc="the direction of motion this scanner guards (its field of view)")
+    no_return: str = param("inf", choices=NO_RETURN,
+                           doc="how its driver reports a ray that saw nothing: inf (REP 117), zero (0.0: LMS1xx, "
+                               "older sick_tim, Ouster) or beyond_max (a range beyond range_max: "
+                               "pointcloud_to_laserscan without use_inf)")
 
 
 @dataclass(frozen=True)
@@ -103,7 +133,8 @@ class GuardParams:
     state_timeout: float = param(0.2, lo=0.01, hi=10.0, unit="s",
                                  doc="the vehicle state (measured speed) silent for this long stops the vehicle")
     blind_fraction: float = param(0.5, lo=0.0, hi=1.0,
-                                  doc="more than this fraction of a scan's rays invalid (NaN): blinded, stop")
+                                  doc="more than this fraction of a scan's rays invalid (NaN, or finite outside "
+                                      "[range_min, range_max]): blinded, stop")
     clear_time: float = param(1.0, lo=0.0, hi=60.0, unit="s", doc="after a stop, the field must stay clear this long")
     release_accel: float = param(0.5, lo=0.05, hi=10.0, unit="m/s^2", doc="how fast the limit rises after a hold")
     stop_speed: float = param(0.1, lo=0.01, hi=2.0, unit="m/s", doc="the vehicle counts as stopped below this")
@@ -262,6 +293,7 @@ class _Scan:
     stamp: float = -math.inf
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     invalid_fraction: float = 0.0
+    counts: Tuple[int, int, int, int] = (0, 0, 0, 0)  # the last scan's rays: all, invalid, 0.0, beyond range_max
     error: str = ""  # a reason it cannot be used (no transform), or ""
 
 
@@ -361,6 +393,7 @@ class Guard:
         if ego is not None:
             self.trackers[topic].update(stamp, xy, ego, points.rays)
         sc.invalid_fraction = points.n_invalid / max(points.n_rays, 1)
+        sc.counts = (points.n_rays, points.n_invalid, points.n_zero, points.n_beyond)
 
     # ---------------------------------------------------------------- decide
     def pitch(self, now: float) -> Optional[float]:
@@ -504,7 +537,7 @@ class Guard:
             if sc.error:
                 return f"{s.topic}: {sc.error}"
             if sc.invalid_fraction > p.blind_fraction:
-                return f"{s.topic} blinded: {100 * sc.invalid_fraction:.0f} % of its rays invalid"
+                return blinded_reason(s.topic, *sc.counts)
         return None
 
     def _free(self, direction: int, h0: float, h1: float, speed: float, length: float, points: np.ndarray,

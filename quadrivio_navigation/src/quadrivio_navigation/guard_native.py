@@ -47,8 +47,8 @@ def load_library():
         lib.qv_guard_on_state.argtypes = [ctypes.c_void_p, d, d, d]
         lib.qv_guard_on_pitch.argtypes = [ctypes.c_void_p, d, d]
         lib.qv_guard_on_pose.argtypes = [ctypes.c_void_p, d, d, d, d, d]
-        lib.qv_guard_on_scan.argtypes = [ctypes.c_void_p, sz, d, p, sz, ctypes.c_int, ctypes.c_int, p, p,
-                                         ctypes.c_char_p]
+        lib.qv_guard_on_scan.argtypes = [ctypes.c_void_p, sz, d, p, sz, ctypes.c_int, ctypes.c_int, ctypes.c_int,
+                                         ctypes.c_int, p, p, ctypes.c_char_p]
         lib.qv_guard_decide.argtypes = [ctypes.c_void_p, d, d, d, p, ctypes.c_char_p, sz]
         lib.qv_guard_command.argtypes = [ctypes.c_void_p, ctypes.c_int, d, d, d, d, p]
         lib.qv_guard_state.restype = ctypes.c_int
@@ -113,7 +113,7 @@ class NativeGuard:
     def on_scan(self, topic: str, stamp: float, points: Optional[ScanPoints], error: str = "") -> None:
         i = self._index[topic]  # a KeyError for a topic that is no scanner's, as the Python guard's
         if points is None:
-            self._lib.qv_guard_on_scan(self._h, i, stamp, None, 0, 0, 0, None, None, error.encode())
+            self._lib.qv_guard_on_scan(self._h, i, stamp, None, 0, 0, 0, 0, 0, None, None, error.encode())
             return
         dp = ctypes.POINTER(ctypes.c_double)
         xy = np.ascontiguousarray(points.xy, dtype=np.float64).reshape(-1, 2)
@@ -125,7 +125,8 @@ class NativeGuard:
             geometry = np.array(rays.origin + tuple(rays.m) + (rays.angle_min, rays.increment), dtype=np.float64)
             free = np.ascontiguousarray(rays.free, dtype=np.float64)
         self._lib.qv_guard_on_scan(self._h, i, stamp, xy.ctypes.data_as(dp), len(xy), int(points.n_rays),
-                                   int(points.n_invalid), None if geometry is None else geometry.ctypes.data_as(dp),
+                                   int(points.n_invalid), int(points.n_zero), int(points.n_beyond),
+                                   None if geometry is None else geometry.ctypes.data_as(dp),
                                    None if free is None else free.ctypes.data_as(dp), None)
 
     # ---------------------------------------------------------------- decide

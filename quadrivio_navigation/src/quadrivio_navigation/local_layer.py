@@ -363,8 +363,9 @@ def scan_in_map(x: float, y: float, yaw: float, t_b, R_b, angle_min: float, angl
 @dataclass(frozen=True)
 class LocalLayerNodeParams:
     """The layer node's own parameters (``config/local_layer.yaml``, beside :class:`LocalLayerParams`)."""
-    scanners: Tuple[ScannerParams, ...] = param(
-        (ScannerParams("scan/front", "laser_front", "forward"), ScannerParams("scan/rear", "laser_rear", "reverse")))
+    scanners: Tuple[ScannerParams, ...] = param((), doc="the scanners to read; empty: the guard's (guard_ns)")
+    guard_ns: str = param("/guard", doc="the guard node, whose scanners (with the scenario's guard: section) are "
+                                        "read when scanners is empty")
     publish_rate: float = param(2.0, lo=0.1, hi=50.0, unit="Hz", doc="local_obstacles rate")
     frame_id: str = param("map")
     base_frame: str = param("base_link")

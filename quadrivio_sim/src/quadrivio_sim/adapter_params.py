@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 from quadrivio_config import param
 
-from .noise import GpsNoiseParams, ImuNoiseParams, LaserNoiseParams, LatencyParams, MagNoiseParams
+from .noise import NO_RETURN, GpsNoiseParams, ImuNoiseParams, LaserNoiseParams, LatencyParams, MagNoiseParams
 
 
 @dataclass(frozen=True)
@@ -50,6 +50,11 @@ class LaserAdapterParams:
     frame_id: str = param("laser_front")
     latency: LatencyParams = param(LatencyParams(0.03, 0.005))
     noise: LaserNoiseParams = param(LaserNoiseParams())
+    no_return: str = param("inf", choices=NO_RETURN,
+                           doc="how the emulated driver reports a ray that saw nothing: inf (REP 117), zero "
+                               "(0.0, as LMS1xx and older sick_tim) or beyond_max (range_max + 1, as "
+                               "pointcloud_to_laserscan without use_inf); the guard's and the layer's scanner "
+                               "must then say the same")
     release_period: float = param(0.001, lo=1e-4, hi=1.0, unit="s")
 
 

@@ -331,6 +331,22 @@ class LaserNoise:
         return out.tolist()
 
 
+NO_RETURN = ("inf", "zero", "beyond_max")
+
+
+def driver_ranges(ranges: Sequence[float], range_max: float, no_return: str = "inf") -> List[float]:
+    """The ranges as a driver publishes them that reports a ray which saw nothing (REP 117's
+    +inf) in its own way ``no_return``: ``inf`` (REP 117), ``zero`` (0.0: LMS1xx without
+    ``publish_min_range_as_inf``, older sick_tim, an Ouster's scan) or ``beyond_max``
+    (``range_max + 1``: pointcloud_to_laserscan with ``use_inf`` false)."""
+    if no_return == "inf":
+        return list(ranges)
+    if no_return not in NO_RETURN:
+        raise ValueError(f"no_return {no_return!r}: expected one of {', '.join(NO_RETURN)}")
+    value = 0.0 if no_return == "zero" else float(range_max) + 1.0
+    return [value if r == math.inf else r for r in ranges]
+
+
 # ------------------------------------------------------------------ latency
 
 

@@ -78,7 +78,8 @@ def analyze(bag: str, out: str, site_file: str = "", vehicle_file: str = "", qui
         run = read_run(bag, site, vehicle, imap, opened, progress=progress.update)
         info = _run_info(bag)
         guard = _guard_params(info)
-        scenes, stops = read_stop_scenes(opened, bag, run, vehicle, [(sc.topic, sc.frame) for sc in guard.scanners])
+        scenes, stops = read_stop_scenes(opened, bag, run, vehicle, [(sc.topic, sc.frame, sc.no_return)
+                                                                 for sc in guard.scanners])
     progress.phase("read; computing the metrics")
     m = metrics.compute(run, info.get("scenario"), info.get("seed"), info.get("wall_duration_s"), vehicle)
     metrics.settle_completed(m, info.get("end"), info.get("outcome"))  # an experiment's run_info.json says them

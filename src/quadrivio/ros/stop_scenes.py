@@ -99,13 +99,14 @@ def _stop_statuses(bag, path: str, limit: int) -> Tuple[List[object], int]:
     return out, count
 
 
-def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str, str]],
+def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str, ...]],
                      limit: int = MAX_VIEWS) -> Tuple[List[StopScene], int]:
     """The first ``limit`` stops of the bag as scenes, and how many stops it holds.
-    ``scanners``: (topic, laser frame) of each laser the guard reads."""
+    ``scanners``: (topic, laser frame[, no_return]) of each laser the guard reads (no_return:
+    how its driver reports no echo, ``inf`` by default: fields.rep117_ranges)."""
     import rospy
 
-    from quadrivio_navigation.fields import scan_points
+    from quadrivio_navigation.fields import rep117_ranges, scan_points
 
     have = bag.get_type_and_topic_info().topics
     if GUARD_TOPIC not in have:
@@ -113,7 +114,8 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
     statuses, count = _stop_statuses(bag, path, limit)
     if not statuses:
         return [], count
-    topics = {("/" + t.lstrip("/")): frame for t, frame in scanners}
+    topics = {("/" + s[0].lstrip("/")): s[1] for s in scanners}
+    no_return = {("/" + s[0].lstrip("/")): (s[2] if len(s) > 2 else "inf") for s in scanners}
     present = [t for t in topics if t in have]
     named: Dict[str, str] = {}  # the frame each recorded laser's scans name (else the configured one)
     if present:
@@ -146,7 +148,8 @@ def read_stop_scenes(bag, path: str, run, vehicle, scanners: Sequence[Tuple[str,
             if mount is None:
                 continue
             R, p = mount
-            pts = scan_points(m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max,
+            ranges = rep117_ranges(m.ranges, m.range_max, no_return[topic])  # the driver's "nothing seen": +inf
+            pts = scan_points(ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max,
                               (float(p[0]), float(p[1]), 0.0), rotation=R)
             scans[topic.lstrip("/")] = pts.xy
             ages[topic.lstrip("/")] = t - m.header.stamp.to_sec()

@@ -7,7 +7,7 @@ from the parameter server and writes on stdout, one item per line (floats as Pyt
 ``repr``: exact)::
 
     param <name> <value>                      every numeric field of GuardParams
-    scanner <topic> <frame> <covers>
+    scanner <topic> <frame> <covers> <no_return>
     zone <x> <y>                              the operating zone's vertices (map frame)
     body <front> <rear> <left> <right>        the vehicle's rectangle about base_link [m]
     vehicle <wheelbase> <ratio> <max_rate> <wheel_radius>
@@ -49,7 +49,7 @@ def emit(out: BinaryIO, p, node, vehicle, hf) -> None:
         for text in (s.topic, s.frame, s.covers):
             if not text or any(c.isspace() for c in text):
                 raise ValueError(f"scanner field {text!r} is empty or holds white space")
-        lines.append(f"scanner {s.topic} {s.frame} {s.covers}")
+        lines.append(f"scanner {s.topic} {s.frame} {s.covers} {s.no_return}")
     for x, y in p.zone:
         lines.append(f"zone {float(x)!r} {float(y)!r}")
     body = Footprint.from_vehicle(vehicle, 0.0)

@@ -53,10 +53,10 @@ from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard,
 from quadrivio_plc.msg import Setpoint, VehicleState
 
 from quadrivio_description.attitude import Attitude, imu_lever
-from ..fields import ScanError, check_scan, scan_points
+from ..fields import ScanError, check_scan, rep117_ranges, scan_points
 from ..local_layer import scan_ground, terrain_ground, wheel_centres
-from ..guard import ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, Guard, GuardNodeParams, GuardParams, \
-    load_zone_file
+from ..guard import (ACTION_NAMES, CLEAR, FAULT, HOLD, SLOW, STOP, DecisionLog, Guard, GuardNodeParams, GuardParams,
+                     load_zone_file)
 from ..msg import GuardStatus
 from .site_inputs import StaticFrames, scenario_heightfield
 
@@ -100,6 +100,7 @@ class GuardNode:
         self.request = None  # (received at, speed, handlebar, brake)
         self.frames = StaticFrames(self.node_params.base_frame)
         self.last_action = None
+        self.log = DecisionLog()
         self.pub_sp = direct_publisher("vehicle/setpoint/auto", Setpoint, queue_size=10)
         self.pub_status = direct_publisher("guard/status", GuardStatus, queue_size=20)
         rospy.Subscriber("vehicle/setpoint/request", Setpoint, self._on_request, queue_size=10)
@@ -115,11 +116,13 @@ class GuardNode:
         guarded_timer(1.0, lambda _: self.diag.update(), "diagnostics")
         on_clock_jump(self._on_clock_jump)
         rospy.loginfo("obstacle guard: %s; brake %.1f m/s^2 after %.2f s, margins %.2f / %.2f m%s",
-                      ", ".join(f"{s.topic} ({s.covers})" for s in p.scanners), p.brake_decel, p.brake_latency,
+                      ", ".join(f"{s.topic} ({s.covers}"
+                                + ("" if s.no_return == "inf" else f", no echo reported as {s.no_return}") + ")"
+                                for s in p.scanners), p.brake_decel, p.brake_latency,
                       p.margin, p.warning_margin, f", operating zone of {len(p.zone)} vertices" if p.zone else "")
 
-    def _ground(self, m: LaserScan, mount, now: float):
-        """Which of the scan's returns lie on the DEM (None: no DEM, or no fresh pose)."""
+    def _ground(self, m: LaserScan, ranges, mount, now: float):
+        """Which of the scan's ``ranges`` lie on the DEM (None: no DEM, or no fresh pose)."""
         pose = self.pose
         if self.heights is None or pose is None or now - pose[0] > 0.5:
             return None
@@ -128,7 +131,7 @@ class GuardNode:
                                 self.vehicle.wheel_radius, (mount[0], mount[1], mount[4]), mount[3],
                                 n.ground_tolerance, 0.0, n.ground_position_sigmas, n.ground_tolerance_max,
                                 n.ground_position_sd_min, self.wheels)
-        return scan_ground(ground, m.ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
+        return scan_ground(ground, ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, MAX_RANGE)
 
     def _on_clock_jump(self, _before: float, _now: float) -> None:
         with self.lock:
@@ -200,10 +203,10 @@ class GuardNode:
         if mount is None:
             points, error = None, f"no transform {self.node_params.base_frame} <- {s.frame} on /tf_static"
         else:
-            ranges = m.ranges
-            ground = self._ground(m, mount, now)
+            ranges = rep117_ranges(m.ranges, m.range_max, s.no_return)  # the driver's "nothing seen" as +inf
+            ground = self._ground(m, ranges, mount, now)
             if ground is not None and ground.any():  # the ground: nothing there (REP 117's +inf)
-                ranges = np.where(ground, np.inf, np.asarray(m.ranges, dtype=float))
+                ranges = np.where(ground, np.inf, ranges)
                 self.ground_returns += int(ground.sum())
             points = scan_points(ranges, m.angle_min, m.angle_increment, m.range_min, m.range_max, mount[:3],
                                  MAX_RANGE, mount[3])
@@ -265,8 +268,7 @@ class GuardNode:
         m.direction, m.slope = d.direction, d.slope
         m.protective_stops = core.protective_stops
         publish(self.pub_status, m)
-        if d.action != before and before is not None and not (d.action == SLOW and before == CLEAR) and \
-                not (d.action == CLEAR and before == SLOW):
+        if self.log.worth(rospy.get_time(), d.action, before, d.reason):
             log = rospy.logerr if d.action == FAULT else rospy.logwarn if d.action in (STOP, HOLD) else rospy.loginfo
             log("guard %s%s", ACTION_NAMES[d.action], f": {d.reason}" if d.reason else "")
 

@@ -3,8 +3,10 @@ the vehicle (:mod:`quadrivio_navigation.local_layer`, costmap_2d's obstacle-laye
 for the planner to check its path against and plan around.
 
 Parameters (private, ``config/local_layer.yaml``; a scenario's ``local_layer:`` section
-overrides): :class:`quadrivio_navigation.local_layer.LocalLayerParams`, ``~scanners`` (the
-guard's list: topic and frame), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
+overrides): :class:`quadrivio_navigation.local_layer.LocalLayerParams`, ``~scanners`` (topic,
+frame and no_return of each; empty, the default: the guard's, ``~guard_ns``'s ``scanners``
+(/guard) with the scenario's ``guard:`` section, so that one list says how each driver reports
+no echo), ``~publish_rate`` (Hz, 2), ``~frame_id`` (map),
 ``~base_frame`` (base_link), ``~terrain_from_scenario`` (bool, true: with a scenario whose
 terrain is known, returns on it are the ground, not obstacles), ``~only_with_goal`` (bool,
 true: the scanners are subscribed only while ``planner/status`` says the planner pursues a
@@ -40,12 +42,15 @@ from sensor_msgs.msg import Imu, LaserScan
 from quadrivio_runtime.ros import init_node, lockstep
 from quadrivio_description.frames import rotate, yaw_from_quaternion
 from quadrivio_runtime.ros import diagnostics
-from quadrivio_runtime.ros.params import node_params, private_params, split_params, vehicle_params, with_scenario
+from quadrivio_config import ConfigError, replace_nested
+from quadrivio_runtime.ros.params import (fatal, node_params, private_params, split_params, vehicle_params,
+                                          with_scenario)
 from quadrivio_runtime.ros.timer import check_clock, guarded_timer, input_guard, on_clock_jump, publish
 from quadrivio_plc.msg import VehicleState
 
 from quadrivio_description.attitude import Attitude, imu_lever
-from ..fields import ScanError, check_scan
+from ..fields import ScanError, check_scan, rep117_ranges
+from ..guard import GuardParams
 from ..local_layer import (LocalLayer, LocalLayerNodeParams, LocalLayerParams, scan_in_map, terrain_ground,
                            wheel_centres)
 from .site_inputs import StaticFrames, scenario_terrain
@@ -54,11 +59,28 @@ from .site_inputs import StaticFrames, scenario_terrain
 NodeParams = LocalLayerNodeParams
 
 
+def guard_scanners(ns: str):
+    """The guard's scanners: ``<ns>/scanners`` (GuardParams' default when the guard has none
+    on the parameter server), with the scenario's ``guard:`` section."""
+    key = ns.rstrip("/") + "/scanners"
+    p = GuardParams()
+    if rospy.has_param(key):
+        try:
+            p = replace_nested(p, {"scanners": rospy.get_param(key)}, key)
+        except ConfigError as exc:
+            fatal(f"bad parameter: {exc}")
+    return with_scenario(p, "guard").scanners
+
+
 class LocalLayerNode:
     def __init__(self) -> None:
         mine, rest = split_params(private_params(), NodeParams)
         self.node_params: NodeParams = node_params(NodeParams, mine)
         self.p: LocalLayerParams = with_scenario(node_params(LocalLayerParams, rest), "local_layer")
+        self.scanners = self.node_params.scanners or guard_scanners(self.node_params.guard_ns)
+        rospy.loginfo("local obstacle layer: %s%s", ", ".join(
+            s.topic + ("" if s.no_return == "inf" else f" (no echo reported as {s.no_return})") for s in self.scanners),
+            "" if self.node_params.scanners else f" (the scanners of {self.node_params.guard_ns})")
         self.vehicle = vehicle_params()
         self.wheels = wheel_centres(self.vehicle)
         self.layer = LocalLayer(self.p)
@@ -80,7 +102,7 @@ class LocalLayerNode:
         self.fixed_subs = lockstep.member() is not None  # subscribed once (see the module's doc)
         if self.fixed_subs:
             self.scan_subs = [rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
-                              for s in self.node_params.scanners]
+                              for s in self.scanners]
         if self.node_params.only_with_goal:
             from ..msg import PlannerStatus
 
@@ -106,7 +128,7 @@ class LocalLayerNode:
                     self.layer = LocalLayer(self.p)
         elif active:
             self.scan_subs = [rospy.Subscriber(s.topic, LaserScan, self._on_scan, s, queue_size=2)
-                              for s in self.node_params.scanners]
+                              for s in self.scanners]
         else:
             for sub in self.scan_subs:
                 sub.unregister()
@@ -168,7 +190,8 @@ class LocalLayerNode:
         t0 = time.perf_counter()
         _, x, y, yaw, sd = pose
         t_b, R_b = mount
-        sensor, bearings, ranges = scan_in_map(x, y, yaw, t_b, R_b, m.angle_min, m.angle_increment, m.ranges,
+        sensor, bearings, ranges = scan_in_map(x, y, yaw, t_b, R_b, m.angle_min, m.angle_increment,
+                                               rep117_ranges(m.ranges, m.range_max, s.no_return),
                                                m.range_min, m.range_max)
         ground = None
         if self.heights is not None:

@@ -69,7 +69,7 @@ from quadrivio_sim.msg import RawGps
 from ..adapter_params import (CameraAdapterParams, GpsAdapterParams, ImuAdapterParams, LaserAdapterParams,
                               MagAdapterParams)
 from ..nmea_out import NmeaEncoder, open_output
-from ..noise import NO_FIX, Latency, adapter_rng, sensor_models
+from ..noise import NO_FIX, Latency, adapter_rng, driver_ranges, sensor_models
 
 
 class Slot:
@@ -346,7 +346,7 @@ class LaserAdapter:
         out.angle_min, out.angle_max, out.angle_increment = m.angle_min, m.angle_max, m.angle_increment
         out.time_increment, out.scan_time = m.time_increment, m.scan_time
         out.range_min, out.range_max = m.range_min, m.range_max
-        out.ranges = self.noise.apply(m.ranges, m.range_min, m.range_max)
+        out.ranges = driver_ranges(self.noise.apply(m.ranges, m.range_min, m.range_max), m.range_max, self.p.no_return)
         self.out.push(m.header.stamp.to_sec(), lambda: publish(self.pub, out))
 
 
