@@ -21,7 +21,8 @@ plan under way), ``localization/odom`` (nav_msgs/Odometry, the start),
 touches a marked cell, the planner replans from the predicted pose on the map with the
 layer's marks added; with no path it reports BLOCKED, keeps the old path (the obstacle
 guard holds the vehicle) and retries every ``~retry`` s; a goal covered by marks is BLOCKED
-too).
+too), ``guard/status`` (how long the guard has held the vehicle); these three from the
+first goal on (in lockstep from the start).
 Publishes: ``planner/path`` (nav_msgs/Path, latched: each pose's orientation is the
 vehicle's heading, so a step pointing against it is driven in reverse), ``planner/status``
 (quadrivio_navigation/PlannerStatus, latched: IDLE with what it waits for, PLANNING,
@@ -131,13 +132,12 @@ class PlannerNode:
         self.block_why = ""  # what blocked the path (BLOCKED retries with it)
         # [s] wall, a replan's (building the map's planner included); none in lockstep
         self.replan_time = self.p.budget + 1.5 if self.member is None else 0.0
+        self.watching = False  # subscribed to what replanning reads (_watch)
+        self.watch_lock = threading.Lock()
         if self.node_params.check_rate > 0.0:
-            rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
-            rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
-            from ..msg import GuardStatus
-
-            rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
             guarded_timer(1.0 / self.node_params.check_rate, self._check, "path check")
+            if self.member is not None:  # lockstep counts a member's messages from its subscriptions at the start
+                self._watch()
         rospy.Service("~plan", PlanPath, self._on_plan_service)
         if self.member is None:
             self.worker = threading.Thread(target=self._work, name="planner", daemon=True)
@@ -213,7 +213,22 @@ class PlannerNode:
         if why:
             self.jobs.put(("replan", why))
 
+    def _watch(self) -> None:
+        """Subscribe what replanning reads (the local layer, the predicted pose, the guard's
+        status), from the first goal on: a run that follows a path and has no goal paid 0.02 CPU
+        s per simulated second for them (the pose at 50 Hz, the guard at 10)."""
+        with self.watch_lock:
+            if self.watching or self.node_params.check_rate <= 0.0:
+                return
+            self.watching = True
+        from ..msg import GuardStatus
+
+        rospy.Subscriber("local_obstacles", OccupancyGrid, self._on_local, queue_size=1)
+        rospy.Subscriber("localization/predicted", Odometry, self._on_predicted, queue_size=1)
+        rospy.Subscriber("guard/status", GuardStatus, self._on_guard, queue_size=5)
+
     def _on_goal(self, m: PoseStamped) -> None:
+        self._watch()
         self.cancel.set()  # a plan under way is for an old goal
         self.jobs.put(("goal", m))
 
