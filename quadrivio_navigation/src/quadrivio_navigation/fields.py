@@ -40,7 +40,7 @@ so that a vehicle slowed down to ``v_allow(d_free)`` stays out of its protective
 ``range_max``, -inf an object closer than ``range_min`` (taken at ``range_min`` along its
 ray); a finite range outside ``[range_min, range_max]`` is invalid. Drivers older than REP
 117 report a ray that saw nothing otherwise: 0.0 (LMS1xx without
-``publish_min_range_as_inf``, sick_tim before 2018, an Ouster's scan) or a range beyond
+``publish_min_range_as_inf``, older sick_tim, an Ouster's scan) or a range beyond
 ``range_max`` (pointcloud_to_laserscan with ``use_inf`` false: ``range_max + 1``). A scanner's
 ``no_return`` names its driver's way, and :func:`rep117_ranges` turns it into +inf; a scan
 that reads mostly so under the wrong ``no_return`` is invalid, and its blinded stop says
