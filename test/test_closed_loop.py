@@ -93,8 +93,8 @@ def test_the_simulated_drivers_no_echo_reads_back():
 def test_lasers_whose_drivers_predate_rep117_make_the_same_run_once_the_guard_is_told(tmp_path):
     """The lasers published as LMS1xx (no echo: 0.0) and pointcloud_to_laserscan without use_inf
     (range_max + 1) publish them. With the guard's scanners' no_return saying so, a lane crossed
-    by a person, replanned around the local layer's marks, is the REP 117 run array for array
-    (the layer reads the guard's scanners). Without, in the open field of the figure eight the
+    by a person, replanned around the local layer's marks (scenarios/lms1xx_lasers.yaml), is
+    orchard_crossing's run array for array (the layer reads the guard's scanners). Without, in the open field of the figure eight the
     guard stops the vehicle from the start, and the run's log says why and what to set."""
     lasers = {"laser_front": {"no_return": "zero"}, "laser_rear": {"no_return": "beyond_max"}}
     told = {"scanners": [{"topic": "scan/front", "frame": "laser_front", "covers": "forward", "no_return": "zero"},
@@ -106,9 +106,14 @@ def test_lasers_whose_drivers_predate_rep117_make_the_same_run_once_the_guard_is
         data.setdefault("sensors", {}).update(lasers)
         if guard:
             data["guard"] = guard
+    with open(resolve("orchard_crossing")) as f, open(resolve("lms1xx_lasers")) as g:
+        plain, shipped = yaml.safe_load(f), yaml.safe_load(g)
+    assert shipped["sensors"] == lasers and shipped["guard"] == told
+    for key in ("name", "description", "sensors", "guard"):
+        plain.pop(key, None), shipped.pop(key, None)
+    assert shipped == plain, "scenarios/lms1xx_lasers.yaml is orchard_crossing but for its lasers"
     a = closed_loop.run(load_scenario("orchard_crossing"), 0, max_duration=13.0)
-    b = closed_loop.run(load_scenario(_with(tmp_path, "orchard_crossing", lambda d: legacy(d, told))), 0,
-                        max_duration=13.0)
+    b = closed_loop.run(load_scenario("lms1xx_lasers"), 0, max_duration=13.0)
     for name in STREAMS:
         assert _same(getattr(a.run, name), getattr(b.run, name)), name
     pa, pb = a.run.planner, b.run.planner  # (its planning_time is wall time)
