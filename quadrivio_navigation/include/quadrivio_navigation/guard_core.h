@@ -1172,7 +1172,6 @@ public:
     for (const auto& q : points->xy)
       if (!v_.body.contains(q.x, q.y))
         sc.points.push_back(q);
-    sc.invalid_fraction = static_cast<double>(points->n_invalid) / std::max(points->n_rays, 1);
     sc.counts = { points->n_rays, points->n_invalid, points->n_zero, points->n_beyond };
     std::array<double, 3> e;
     if (egoAt(stamp, e))
@@ -1361,7 +1360,6 @@ private:
   {
     double stamp = -kInf;
     std::vector<Point> points;
-    double invalid_fraction = 0.0;
     std::array<int, 4> counts = { 0, 0, 0, 0 };  // the last scan's rays: all, invalid, 0.0, beyond range_max
     std::string error;
   };
@@ -1421,7 +1419,7 @@ private:
         return format("%s silent for %.2f s (> %s s)", s.topic.c_str(), age, pyfloat(p_.scan_timeout).c_str());
       if (!sc.error.empty())
         return s.topic + ": " + sc.error;
-      if (sc.invalid_fraction > p_.blind_fraction)
+      if (static_cast<double>(sc.counts[1]) / std::max(sc.counts[0], 1) > p_.blind_fraction)  // invalid / all
         return blindedReason(s.topic, sc.counts[0], sc.counts[1], sc.counts[2], sc.counts[3]);
     }
     return "";

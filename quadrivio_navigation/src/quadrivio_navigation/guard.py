@@ -292,7 +292,6 @@ class Decision:
 class _Scan:
     stamp: float = -math.inf
     points: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    invalid_fraction: float = 0.0
     counts: Tuple[int, int, int, int] = (0, 0, 0, 0)  # the last scan's rays: all, invalid, 0.0, beyond range_max
     error: str = ""  # a reason it cannot be used (no transform), or ""
 
@@ -392,7 +391,6 @@ class Guard:
         ego = self.ego_at(stamp)
         if ego is not None:
             self.trackers[topic].update(stamp, xy, ego, points.rays)
-        sc.invalid_fraction = points.n_invalid / max(points.n_rays, 1)
         sc.counts = (points.n_rays, points.n_invalid, points.n_zero, points.n_beyond)
 
     # ---------------------------------------------------------------- decide
@@ -536,7 +534,7 @@ class Guard:
                 return f"{s.topic} silent for {age:.2f} s (> {p.scan_timeout} s)"
             if sc.error:
                 return f"{s.topic}: {sc.error}"
-            if sc.invalid_fraction > p.blind_fraction:
+            if sc.counts[1] / max(sc.counts[0], 1) > p.blind_fraction:  # invalid / all
                 return blinded_reason(s.topic, *sc.counts)
         return None
 
