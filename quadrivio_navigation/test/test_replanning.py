@@ -8,8 +8,8 @@ from quadrivio_navigation.maps import OccupancyGrid
 import math
 
 from quadrivio_navigation.fields import inside
-from quadrivio_navigation.replanning import (HeldPoints, blocked_reason, known_distance, mark_discs, merge_local,
-                                             new_marks)
+from quadrivio_navigation.replanning import (DetourWait, HeldPoints, blocked_reason, known_distance, mark_discs,
+                                             merge_local, new_marks, path_length, remaining_length)
 
 FP = Footprint.from_vehicle(load_vehicle(), 0.15)
 PATH = np.column_stack([np.arange(0.0, 30.0, 0.1), np.zeros(300), np.zeros(300)])
@@ -91,3 +91,38 @@ def test_discs_close_the_way_toward_the_points_but_not_the_start():
     # without a footprint the whole disc, and the map's edge clips it
     full = mark_discs(grid, [(-4.95, -4.95)], 0.45)
     assert int((full.data == 100).sum()) > 0 and full.data[0, 0] == 100
+
+
+def test_the_length_left_is_from_the_pose_nearest_the_vehicle():
+    assert math.isclose(path_length(PATH), 29.9, abs_tol=1e-9)
+    assert math.isclose(remaining_length(PATH, (10.02, 0.4, 0.0)), 19.9, abs_tol=1e-9)
+    assert remaining_length(PATH, (40.0, 0.0, 0.0)) == 0.0
+    assert remaining_length(None, (0.0, 0.0, 0.0)) == path_length(PATH[:1]) == 0.0
+
+
+def test_a_short_way_round_is_taken_at_once_a_long_one_after_the_wait():
+    d = DetourWait(wait=10.0, margin=5.0)
+    assert d.take(3.0, 4.9) and not d.waiting  # a swerve within the lane
+    d.clear()
+    d.blocked(20.0)  # the path found blocked; the replan comes back later
+    assert not d.take(20.5, 53.0) and d.waiting  # round the orchard: wait
+    assert math.isclose(d.left(21.0), 9.0)
+    assert not d.take(29.9, 53.0)
+    assert d.take(30.0, 53.0) and not d.waiting and d.left(30.0) == 0.0  # waited 10 s from the first sight
+    assert DetourWait(wait=0.0, margin=5.0).take(0.0, 500.0)  # 0: every detour at once
+    assert not DetourWait(10.0, 5.0).take(0.0, math.inf)  # no bound on the way round is a long one
+
+
+def test_a_path_clear_again_ends_the_wait_only_once_it_stays_clear():
+    """Marks that flicker (the dog at the lane's edge, seen and not) must not make the wait
+    start over, or a vehicle could wait for ever for a way round."""
+    d = DetourWait(wait=10.0, margin=5.0)
+    assert not d.take(8.5, 58.0)
+    d.resume(9.0)  # cleared: the vehicle goes on
+    assert not d.waiting
+    assert not d.take(9.5, 58.0) and math.isclose(d.left(9.5), 9.0)  # blocked again: the same episode
+    d.resume(10.0)
+    d.blocked(20.5)  # clear for over the wait: a new episode
+    assert math.isclose(d.left(20.5), 10.0)
+    d.clear()  # a way round taken
+    assert d.since is None and d.left(99.0) == 0.0

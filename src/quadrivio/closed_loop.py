@@ -161,8 +161,9 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
     from quadrivio_navigation.planning import Planner, PlannerParams, repeatable
-    from quadrivio_navigation.replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance,
-                                                 mark_discs, merge_local, replan_start)
+    from quadrivio_navigation.replanning import (DetourWait, HeldPoints, PlannerNodeParams, blocked_reason,
+                                                 known_distance, mark_discs, merge_local, path_length,
+                                                 remaining_length, replan_start)
     from quadrivio_navigation.rollover import RolloverParams
     from quadrivio_plc import protocol
     from quadrivio_plc.client import Multiplexer, PlcClientParams
@@ -266,6 +267,7 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     local_grid = None
     last_try = -math.inf
     block_why = ""
+    detour = DetourWait(pnode.detour_wait, pnode.detour_margin)  # drive round what blocks the path, or wait?
     plan_wall: List[float] = []
     replans = 0
 
@@ -308,8 +310,9 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         planner_state, planner_reason = state, reason
         rec.planner.append((t, state, took, length))
 
-    def plan(t: float, start, on, why: str = "") -> None:
-        """A first plan (``why`` empty) or a replan on the grid ``on``."""
+    def plan(t: float, start, on, why: str = "", blocked: bool = True) -> None:
+        """A first plan (``why`` empty) or a replan on the grid ``on`` (``blocked``: because the
+        path is, and a long way round waits for it to clear: :class:`DetourWait`)."""
         nonlocal path_poses, last_try, block_why, replans
         last_try = t
         p = planner if not why else Planner(on, v, plp, heights if pnode.terrain_from_scenario else None,
@@ -318,9 +321,11 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
         if why:
             block_why = why
             occupied = p.check_pose(goal, "goal")
+            detour.waiting = False  # until a way round is put off: with none, retried every pnode.retry s
             if occupied:
                 set_planner(t, 4, f"{why}; and the goal is blocked: {occupied}")
                 return
+            here = start
             prefix, start = replan_start(path_poses, start, pose[4] if pose else 0.0, 0.5, p.path_collides)
             log(t, f"planner: {why}: replanning from ({start[0]:.2f}, {start[1]:.2f})")
         w0 = time.perf_counter()
@@ -333,6 +338,13 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 set_planner(t, 3, r.reason, r.planning_time)
                 log(t, f"planner: FAILED: {r.reason}")
             return
+        if why and blocked:
+            extra = path_length(prefix) + r.length - remaining_length(path_poses, here)
+            if not detour.take(t, extra):
+                set_planner(t, 4, f"{why}; waiting up to {detour.left(t):.1f} s for it to clear: the way round is "
+                                  f"{extra:.0f} m longer")
+                return
+        detour.clear()
         poses = np.concatenate([prefix, r.poses]) if len(prefix) else r.poses
         path_poses = poses
         guard_held[1] = None  # held since: the new path is followed from here
@@ -567,7 +579,17 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 and steps % check_steps == 0:
             cur = pose[1:4]
             merged = None
-            if planner_state == 4:
+            if planner_state == 4 and detour.waiting:  # for the path to clear
+                why = blocked_reason(path_poses, cur, local_grid, planner.footprint, pnode.check_horizon, grid,
+                                     known, pnode.known_tolerance)
+                if not why:
+                    log(t, f"planner: the path cleared, {t - detour.since:.1f} s after it was blocked: going on")
+                    detour.resume(t)
+                    found = [row for row in rec.planner if row[1] == 2]
+                    set_planner(t, 2, "the path cleared", *(found[-1][2:] if found else ()))
+                elif detour.left(t) <= 0.0:
+                    plan(t, cur, merge_local(grid, local_grid, known, pnode.known_tolerance), why)
+            elif planner_state == 4:
                 if t - last_try >= pnode.retry:
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
                     plan(t, cur, merged, block_why)
@@ -578,12 +600,14 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                 held_why = not why and hs is not None and t - hs >= pnode.held_replan and t - last_try >= pnode.retry
                 if held_why:
                     why = f"the obstacle guard has held the vehicle for {t - hs:.0f} s"
+                elif why:
+                    detour.blocked(t)
                 if why:
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)
                     if held_why:
                         merged = mark_discs(merged, held_points.near(cur[0], cur[1]), pnode.held_clearance,
                                             planner.footprint, cur)
-                    plan(t, cur, merged, why)
+                    plan(t, cur, merged, why, not held_why)
         if steps % follow_steps == 0 and follower is not None and pose is not None:
             age = max(0.0, t - pose[0])
             cmd = follower.update(pose[1], pose[2], pose[3], pose[4], pose_age=age, t=t,

@@ -191,6 +191,75 @@ def overtaken(prefix: np.ndarray, start, current: Optional[Tuple[float, float, f
     return int(np.argmin(np.hypot(pts[:, 0] - current[0], pts[:, 1] - current[1]))) >= len(pts) - 1
 
 
+def remaining_length(poses: Optional[np.ndarray], current: Tuple[float, float, float]) -> float:
+    """Length [m] of the path ``poses`` from its pose nearest ``current`` to its end (0 without one)."""
+    if poses is None or len(poses) < 2:
+        return 0.0
+    i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
+    return float(np.sum(np.hypot(np.diff(poses[i0:, 0]), np.diff(poses[i0:, 1]))))
+
+
+def path_length(poses: Optional[np.ndarray]) -> float:
+    """Length [m] of the path ``poses`` (0 without one)."""
+    if poses is None or len(poses) < 2:
+        return 0.0
+    return float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
+
+
+class DetourWait:
+    """Drive round what blocks the path, or wait for it to go?
+
+    The local layer cannot tell a person crossing the lane from a parked vehicle: both are
+    marks on the path. A detour that adds little (within ``margin`` metres of what was left
+    of the path) is taken at once. A longer one waits: the path stays as it is (the obstacle
+    guard stops the vehicle short of what blocks it) until it clears, and the vehicle goes on;
+    or until it has stayed blocked for ``wait`` seconds, and the detour is planned again, from
+    where the vehicle then stands. A person crossing an orchard lane sent the vehicle round
+    the orchard (94 m instead of 57) for the 3 s they took to cross; a vehicle parked in the
+    lane costs the wait. ``wait`` 0: every detour at once.
+
+    An episode runs from the first time the path is found blocked until a detour is taken
+    (:meth:`clear`), or until the path, clear again (:meth:`resume`), has stayed clear for
+    ``wait`` seconds: marks that flicker (a dog at the lane's edge, seen and not) do not make the
+    wait start over."""
+
+    def __init__(self, wait: float, margin: float) -> None:
+        self.wait = wait
+        self.margin = margin
+        self.since: Optional[float] = None  # the path blocked since (this episode)
+        self.cleared: Optional[float] = None  # the path clear again since (within the episode)
+        self.waiting = False  # a detour was put off: the old path is kept until it clears
+
+    def blocked(self, t: float) -> None:
+        """The path is found blocked at ``t`` (the episode starts, if it had not)."""
+        if self.since is None or (self.cleared is not None and t - self.cleared > self.wait):
+            self.since = t
+        self.cleared = None
+
+    def take(self, t: float, extra: float) -> bool:
+        """Take a detour that is ``extra`` metres longer than what is left of the path, at ``t``?
+        False: wait (:attr:`waiting`)."""
+        self.blocked(t)
+        take = self.wait <= 0.0 or not extra > self.margin or t - self.since >= self.wait
+        self.waiting = not take
+        return take
+
+    def left(self, t: float) -> float:
+        """Seconds left to wait (0: the detour's turn)."""
+        return 0.0 if self.since is None else max(0.0, self.wait - (t - self.since))
+
+    def resume(self, t: float) -> None:
+        """The path waited for is clear at ``t``: the vehicle goes on along it."""
+        self.waiting = False
+        self.cleared = t
+
+    def clear(self) -> None:
+        """A detour is taken: the episode ends."""
+        self.since = None
+        self.cleared = None
+        self.waiting = False
+
+
 @dataclass(frozen=True)
 class PlannerNodeParams:
     """The planner node's own parameters (``config/planner.yaml``, beside :class:`.planning.PlannerParams`)."""
@@ -210,6 +279,12 @@ class PlannerNodeParams:
                                   doc="a replan because the guard held the vehicle keeps this far from the points it "
                                       "held it for (the guard's creep_margin: nearer, it lets the vehicle creep no "
                                       "further)")
+    detour_wait: float = param(10.0, lo=0.0, hi=600.0, unit="s",
+                               doc="a detour longer than the blocked path by more than detour_margin waits this long "
+                                   "for the path to clear (the guard stops the vehicle short of what blocks it); "
+                                   "0: every detour at once")
+    detour_margin: float = param(5.0, lo=0.0, hi=10000.0, unit="m",
+                                 doc="a detour adding at most this much to the blocked path is taken at once")
     known_tolerance: float = param(0.8, lo=0.0, hi=5.0, unit="m",
                                    doc="local marks this close to the map's obstacles are those obstacles (the marks "
                                        "lie where the estimated pose puts them: the localization's error included)")

@@ -11,7 +11,12 @@ a scenario's ``planner:`` section overrides), and:
 
 * ``~check_rate`` (Hz, 2; 0: never), ``~check_horizon`` (m, 25), ``~retry`` (s, 2): how
   often the remaining path is checked against ``local_obstacles``, how far ahead, and how
-  often a blocked vehicle tries again.
+  often a blocked vehicle tries again; ``~detour_wait`` (s, 10), ``~detour_margin`` (m, 5): a
+  way round longer than the blocked path by more than the margin is put off (BLOCKED, "waiting
+  up to ... s for it to clear", the old path kept: the guard stops the vehicle short of what
+  blocks it) until the path clears (FOUND, "the path cleared: going on") or has stayed blocked
+  that long, and is then planned from where the vehicle stands
+  (:class:`quadrivio_navigation.replanning.DetourWait`).
 
 Subscribes: ``map`` (nav_msgs/OccupancyGrid), ``move_base_simple/goal``
 (geometry_msgs/PoseStamped, rviz's 2D Nav Goal; a new goal replans at once, cancelling a
@@ -61,8 +66,8 @@ from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
 from ..planning import PlannerParams, Planner, PlanResult, repeatable
-from ..replanning import (HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs, merge_local,
-                          overtaken, replan_start)
+from ..replanning import (DetourWait, HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs,
+                          merge_local, overtaken, path_length, remaining_length, replan_start)
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 from .site_inputs import scenario_terrain, site_frame
@@ -130,6 +135,8 @@ class PlannerNode:
         self.last_try = -math.inf
         self.replans = 0
         self.block_why = ""  # what blocked the path (BLOCKED retries with it)
+        self.detour = DetourWait(self.node_params.detour_wait, self.node_params.detour_margin)  # or wait?
+        self.last_found: tuple = (None, None, None)  # the start, goal and plan of the path in force
         # [s] wall, a replan's (building the map's planner included); none in lockstep
         self.replan_time = self.p.budget + 1.5 if self.member is None else 0.0
         self.watching = False  # subscribed to what replanning reads (_watch)
@@ -197,6 +204,20 @@ class PlannerNode:
         st = self.status.state
         if self.local is None or self.current is None or self.goal is None or self.planner is None:
             return
+        if st == PlannerStatus.BLOCKED and self.detour.waiting and self.path_poses is not None:
+            # for the path to clear (the guard stops the vehicle short of what blocks it)
+            why = blocked_reason(self.path_poses, self.current, self.local, self.planner.footprint,
+                                 self.node_params.check_horizon, self.static_grid, self.known,
+                                 self.node_params.known_tolerance)
+            now = rospy.get_time()
+            if not why:
+                rospy.loginfo("planner: the path cleared, %.1f s after it was blocked: going on",
+                              now - self.detour.since)
+                self.detour.resume(now)
+                self._resume()
+            elif self.detour.left(now) <= 0.0:
+                self.jobs.put(("replan", why))
+            return
         if st == PlannerStatus.BLOCKED:
             if rospy.get_time() - self.last_try >= self.node_params.retry:
                 self.jobs.put(("replan", self.block_why))
@@ -210,6 +231,8 @@ class PlannerNode:
                 now - self.last_try >= self.node_params.retry:
             why = f"the obstacle guard has held the vehicle for {now - self.held_since:.0f} s"
             self.held_replan = True
+        elif why:
+            self.detour.blocked(now)
         if why:
             self.jobs.put(("replan", why))
 
@@ -300,6 +323,7 @@ class PlannerNode:
         if problem:
             return
         merged = merge_local(self.static_grid, self.local, self.known, self.node_params.known_tolerance)
+        held = self.held_replan
         if self.held_replan and self.planner is not None:  # keep the guard's distance from what it held for
             merged = mark_discs(merged, self.held_points.near(self.current[0], self.current[1]),
                                 self.node_params.held_clearance, self.planner.footprint, self.current)
@@ -309,6 +333,7 @@ class PlannerNode:
         occupied = planner.check_pose(goal, "goal")
         # A moving vehicle drives on while the planner works: plan from where it will be on
         # its current path by then (short of the blockage), and keep the path up to there
+        here = self.current
         prefix, start = self._replan_start(planner)
         start_msg = pose_stamped(*start, self.node_params.frame_id, rospy.Time.now())
         if occupied:
@@ -325,6 +350,13 @@ class PlannerNode:
             self.replan_time = max(took, 0.5 * (self.replan_time + took))
         if not r.ok:
             return self._blocked(f"{why}; no other path: {r.reason}", start_msg, r)
+        if not held:  # the path is blocked: a long way round waits for it to clear
+            extra = path_length(prefix) + r.length - remaining_length(self.path_poses, here)
+            if not self.detour.take(rospy.get_time(), extra):
+                reason = f"{why}; waiting up to {self.detour.left(rospy.get_time()):.1f} s for it to clear: the way " \
+                         f"round is {extra:.0f} m longer"
+                rospy.logwarn("planner: BLOCKED: %s", reason)
+                return self._set_status(PlannerStatus.BLOCKED, reason, start_msg, self.goal)
         if self._overtaken(prefix, start):
             # the vehicle drove past the replan's start while it was being planned: again,
             # from further ahead (the estimate of the planning time has grown)
@@ -332,6 +364,7 @@ class PlannerNode:
                 self.jobs.put(("replan", why))
             rospy.logwarn("planner: the vehicle passed the replan's start while planning (%.1f s): again", took)
             return
+        self.detour.clear()
         self.replans += 1
         self.blocked_since = None
         self.held_since = None
@@ -350,7 +383,12 @@ class PlannerNode:
     def _overtaken(self, prefix: np.ndarray, start) -> bool:
         return overtaken(prefix, start, self.current)
 
+    def _resume(self) -> None:
+        """FOUND again: the path waited for is clear, the vehicle goes on along it."""
+        self._set_status(PlannerStatus.FOUND, "the path cleared: going on", *self.last_found)
+
     def _blocked(self, reason: str, start: PoseStamped, r: Optional[PlanResult] = None) -> None:
+        self.detour.waiting = False  # no way round to put off: retried every ~retry s
         if self.blocked_since is None:
             self.blocked_since = rospy.get_time()
             rospy.logwarn("planner: BLOCKED: %s (retrying every %.1f s; the vehicle stays stopped)", reason,
@@ -406,6 +444,7 @@ class PlannerNode:
         self._publish_path(path_msg(r.poses, self.node_params.frame_id, rospy.Time.now()))
         self.path_poses = r.poses
         self.blocked_since = None
+        self.detour.clear()
         self._set_status(PlannerStatus.FOUND, r.note, start_msg, m, r)
         rospy.loginfo("planner: %s path of %.1f m, %d cusp(s), cost %.1f; first solution in %.0f ms, %.2f s in all",
                       r.planner, r.length, r.cusps, r.cost, 1e3 * r.time_to_first, r.planning_time)
@@ -444,6 +483,8 @@ class PlannerNode:
             st.cusps = r.cusps if r.ok else 0
             st.expansions = r.expansions
         self.status = st
+        if state == PlannerStatus.FOUND:
+            self.last_found = (start, goal, r)
         publish(self.pub_status, st)
 
     # ----------------------------------------------------------------- service
