@@ -587,8 +587,11 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
                     detour.resume(t)
                     found = [row for row in rec.planner if row[1] == 2]
                     set_planner(t, 2, "the path cleared", *(found[-1][2:] if found else ()))
-                elif detour.left(t) <= 0.0:
-                    plan(t, cur, merge_local(grid, local_grid, known, pnode.known_tolerance), why)
+                elif detour.left(t) <= 0.0:  # the way round, from where the guard holds the vehicle: kept
+                    # held_clearance from what it held it for, as after held_replan
+                    merged = mark_discs(merge_local(grid, local_grid, known, pnode.known_tolerance),
+                                        held_points.near(cur[0], cur[1]), pnode.held_clearance, planner.footprint, cur)
+                    plan(t, cur, merged, why)
             elif planner_state == 4:
                 if t - last_try >= pnode.retry:
                     merged = merge_local(grid, local_grid, known, pnode.known_tolerance)

@@ -215,7 +215,8 @@ class PlannerNode:
                               now - self.detour.since)
                 self.detour.resume(now)
                 self._resume()
-            elif self.detour.left(now) <= 0.0:
+            elif self.detour.left(now) <= 0.0:  # the way round, from where the guard holds the vehicle: kept
+                self.held_replan = True          # held_clearance from what it held it for, as after held_replan
                 self.jobs.put(("replan", why))
             return
         if st == PlannerStatus.BLOCKED:
