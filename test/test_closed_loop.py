@@ -240,6 +240,10 @@ def test_a_person_crossing_the_lane_is_waited_for_and_a_dog_that_stays_is_driven
     assert m["path_length_m"] < 62.0, m  # the lane: the first path was 57 m, round the orchard 94
     lines = [line for _, line in r.log if line.startswith("planner:")]
     assert any("waiting up to" in line for line in lines) and any("the path cleared" in line for line in lines), lines
+    from quadrivio.plots import blocked_spans  # guard.png's strip
+
+    spans = blocked_spans(r.run.planner, float(r.run.guard.t[-1]))
+    assert len(spans) == 1 and 0.0 < spans[0][1] - spans[0][0] < wait, spans
 
     s = load_scenario("dog_runs_out")
     r = closed_loop.run(s, 0, max_duration=8.0 + wait + 3.0)

@@ -116,9 +116,18 @@ def _draw_stops(ax, run: RunData) -> None:
         ax.plot(xs, ys, "*", color="k", ms=12, label=f"contact ({len(xs)})", zorder=6)
 
 
+def blocked_spans(planner, t_end: float) -> list:
+    """``[(from, to)]`` of the planner's BLOCKED states (planner/status: ``t``, ``state``), the
+    last to ``t_end`` (or its own start) if it lasts."""
+    if not len(planner):
+        return []
+    ends = np.append(planner.t[1:], max(t_end, float(planner.t[-1])))
+    return [(float(a), float(b)) for a, b, st in zip(planner.t, ends, planner["state"]) if st == 4 and b > a]
+
+
 def guard(run: RunData, path: str, title: str) -> bool:
     """The obstacle guard over time: speeds asked, sent and measured; free distance against
-    the protective and warning fields; its action."""
+    the protective and warning fields; its action; the planner's BLOCKED spans (a strip on top)."""
     g = run.guard
     if len(g) == 0:
         return False
@@ -133,6 +142,10 @@ def guard(run: RunData, path: str, title: str) -> bool:
             for a in (a1, a2):
                 a.fill_between(t, 0, 1, where=on, step="post", color=c, alpha=0.5, transform=a.get_xaxis_transform(),
                                label=names[k] if a is a1 else None)
+    if len(run.planner):  # the planner's BLOCKED spans (no way round, or one put off while it waits)
+        for i, (a, b) in enumerate(blocked_spans(run.planner, float(t[-1]))):
+            a1.axvspan(a, b, ymin=0.92, ymax=1.0, color="tab:purple", alpha=0.6, lw=0,
+                       label="planner BLOCKED (waiting, or no way)" if i == 0 else None)
     a1.plot(t, np.abs(g["requested"]), color="tab:gray", lw=1, label="requested |speed|")
     if len(run.setpoint):
         a1.plot(run.setpoint.t, np.abs(run.setpoint["speed"]), color="tab:blue", lw=1, label="guarded |speed|")
