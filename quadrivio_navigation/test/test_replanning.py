@@ -5,11 +5,12 @@ import numpy as np
 from quadrivio_description.vehicle import load_vehicle
 from quadrivio_navigation.costmap import Footprint
 from quadrivio_navigation.maps import OccupancyGrid
+from quadrivio_navigation.planning import path_length
 import math
 
 from quadrivio_navigation.fields import inside
 from quadrivio_navigation.replanning import (DetourWait, HeldPoints, blocked_reason, known_distance, mark_discs,
-                                             merge_local, new_marks, path_length, remaining_length)
+                                             merge_local, new_marks, remaining_length)
 
 FP = Footprint.from_vehicle(load_vehicle(), 0.15)
 PATH = np.column_stack([np.arange(0.0, 30.0, 0.1), np.zeros(300), np.zeros(300)])
@@ -97,7 +98,7 @@ def test_the_length_left_is_from_the_pose_nearest_the_vehicle():
     assert math.isclose(path_length(PATH), 29.9, abs_tol=1e-9)
     assert math.isclose(remaining_length(PATH, (10.02, 0.4, 0.0)), 19.9, abs_tol=1e-9)
     assert remaining_length(PATH, (40.0, 0.0, 0.0)) == 0.0
-    assert remaining_length(None, (0.0, 0.0, 0.0)) == path_length(PATH[:1]) == 0.0
+    assert remaining_length(None, (0.0, 0.0, 0.0)) == path_length(PATH[:1]) == 0.0  # planning.path_length
 
 
 def test_a_short_way_round_is_taken_at_once_a_long_one_after_the_wait():

@@ -160,10 +160,10 @@ def run(s: Scenario, seed: int, progress: Optional[Callable[[float, float], None
     from quadrivio_navigation.maps import OccupancyGrid as Grid
     from quadrivio_navigation.maps import load_map
     from quadrivio_navigation.paths import PathParams, path_points
-    from quadrivio_navigation.planning import Planner, PlannerParams, repeatable
+    from quadrivio_navigation.planning import Planner, PlannerParams, path_length, repeatable
     from quadrivio_navigation.replanning import (DetourWait, HeldPoints, PlannerNodeParams, blocked_reason,
-                                                 known_distance, mark_discs, merge_local, path_length,
-                                                 remaining_length, replan_start)
+                                                 known_distance, mark_discs, merge_local, remaining_length,
+                                                 replan_start)
     from quadrivio_navigation.rollover import RolloverParams
     from quadrivio_plc import protocol
     from quadrivio_plc.client import Multiplexer, PlcClientParams

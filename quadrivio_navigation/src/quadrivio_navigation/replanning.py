@@ -22,6 +22,7 @@ from quadrivio_config import param
 
 from .fields import inside
 from .maps import OccupancyGrid as Grid
+from .planning import path_length
 
 
 def known_distance(static: Grid, lethal: int = 65) -> np.ndarray:
@@ -196,14 +197,7 @@ def remaining_length(poses: Optional[np.ndarray], current: Tuple[float, float, f
     if poses is None or len(poses) < 2:
         return 0.0
     i0 = int(np.argmin(np.hypot(poses[:, 0] - current[0], poses[:, 1] - current[1])))
-    return float(np.sum(np.hypot(np.diff(poses[i0:, 0]), np.diff(poses[i0:, 1]))))
-
-
-def path_length(poses: Optional[np.ndarray]) -> float:
-    """Length [m] of the path ``poses`` (0 without one)."""
-    if poses is None or len(poses) < 2:
-        return 0.0
-    return float(np.sum(np.hypot(np.diff(poses[:, 0]), np.diff(poses[:, 1]))))
+    return path_length(poses[i0:])
 
 
 class DetourWait:

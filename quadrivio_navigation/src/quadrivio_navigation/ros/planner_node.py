@@ -65,9 +65,9 @@ from quadrivio_runtime.ros.timer import guarded_timer, input_guard, publish
 
 from ..maps import MapError, OccupancyGrid as Grid, grid_warnings, load_map
 from ..msg import PlannerStatus
-from ..planning import PlannerParams, Planner, PlanResult, repeatable
+from ..planning import PlannerParams, Planner, PlanResult, path_length, repeatable
 from ..replanning import (DetourWait, HeldPoints, PlannerNodeParams, blocked_reason, known_distance, mark_discs,
-                          merge_local, overtaken, path_length, remaining_length, replan_start)
+                          merge_local, overtaken, remaining_length, replan_start)
 from ..srv import PlanPath, PlanPathResponse
 from .conversions import path_msg, pose_stamped, yaw_of
 from .site_inputs import scenario_terrain, site_frame
